@@ -1,0 +1,159 @@
+"""Image I/O. 8-bit and 16-bit PNG/JPEG are sRGB and are linearised; EXR and HDR are linear.
+
+All arrays are float32, rows top to bottom, RGB in the last axis."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import InputError
+from .. import fsio
+
+LINEAR_SUFFIXES = {".exr", ".hdr"}
+
+
+def srgb_to_linear(x: np.ndarray) -> np.ndarray:
+    x = np.asarray(x, dtype=np.float32)
+    return np.where(x <= 0.04045, x / 12.92, ((x + 0.055) / 1.055) ** 2.4).astype(np.float32)
+
+
+def linear_to_srgb(x: np.ndarray) -> np.ndarray:
+    x = np.clip(np.asarray(x, dtype=np.float32), 0.0, 1.0)
+    return np.where(x <= 0.0031308, x * 12.92, 1.055 * np.power(x, 1 / 2.4) - 0.055).astype(np.float32)
+
+
+def _read_exr(path: Path) -> np.ndarray:
+    import OpenEXR
+
+    try:
+        with OpenEXR.File(str(path)) as f:
+            channels = f.channels()
+            if "RGB" in channels:
+                rgb = np.asarray(channels["RGB"].pixels, dtype=np.float32)
+            elif "RGBA" in channels:
+                rgb = np.asarray(channels["RGBA"].pixels, dtype=np.float32)
+            elif all(c in channels for c in "RGB"):
+                rgb = np.stack([np.asarray(channels[c].pixels, dtype=np.float32) for c in "RGB"], -1)
+            elif "Y" in channels:
+                y = np.asarray(channels["Y"].pixels, dtype=np.float32)
+                rgb = np.repeat(y[..., None], 3, -1)
+            else:
+                raise InputError(path, f"EXR has channels {sorted(channels)} but no R, G, B or Y",
+                                 "save the image with RGB channels")
+    except InputError:
+        raise
+    except Exception as err:
+        raise InputError(path, f"cannot read EXR ({err})", "re-export the file as OpenEXR") from err
+    return rgb
+
+
+def _read_hdr(path: Path) -> np.ndarray:
+    from .rgbe import read_rgbe
+
+    return read_rgbe(path)
+
+
+def read_rgba(path: str | Path) -> tuple[np.ndarray, bool]:
+    """Read an image as float32 HxWxC (C = 3 or 4) and whether it was linear on disk."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(path, "image file not found", "check the path or re-export the frames")
+    suffix = path.suffix.lower()
+    if suffix == ".exr":
+        return _read_exr(path), True
+    if suffix == ".hdr":
+        return _read_hdr(path), True
+    from PIL import Image
+
+    try:
+        with Image.open(path) as im:
+            im.load()
+            mode = im.mode
+            if mode in ("I;16", "I;16B", "I"):
+                arr = np.asarray(im, dtype=np.float32) / 65535.0
+                arr = arr[..., None]
+            else:
+                if mode not in ("RGB", "RGBA", "L", "LA"):
+                    im = im.convert("RGBA" if "A" in mode or "transparency" in im.info else "RGB")
+                arr = np.asarray(im, dtype=np.float32) / 255.0
+    except Exception as err:
+        raise InputError(path, f"cannot read image ({err.__class__.__name__})",
+                         "replace the file with a valid PNG, JPEG or EXR") from err
+    if arr.ndim == 2:
+        arr = arr[..., None]
+    if arr.shape[-1] in (1, 2):  # grey or grey+alpha
+        grey = np.repeat(arr[..., :1], 3, -1)
+        arr = np.concatenate([grey, arr[..., 1:]], -1)
+    return arr.astype(np.float32), False
+
+
+def read_linear_rgb(path: str | Path) -> np.ndarray:
+    """Read an image as linear float32 RGB (sRGB files are decoded)."""
+    arr, linear = read_rgba(path)
+    rgb = arr[..., :3]
+    return rgb if linear else srgb_to_linear(rgb)
+
+
+def read_mask(path: str | Path) -> np.ndarray:
+    """Read a mask as float32 HxW in [0, 1]: the alpha channel if present, else the mean of RGB."""
+    arr, _ = read_rgba(path)
+    m = arr[..., 3] if arr.shape[-1] == 4 else arr[..., :3].mean(-1)
+    return np.clip(m, 0.0, 1.0).astype(np.float32)
+
+
+def image_size(path: str | Path) -> tuple[int, int]:
+    """(width, height) of an image without decoding its pixels where possible."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(path, "image file not found", "check the path or re-export the frames")
+    if path.suffix.lower() in LINEAR_SUFFIXES:
+        arr, _ = read_rgba(path)
+        return arr.shape[1], arr.shape[0]
+    from PIL import Image
+
+    try:
+        with Image.open(path) as im:
+            return im.size
+    except Exception as err:
+        raise InputError(path, f"cannot read image ({err.__class__.__name__})",
+                         "replace the file with a valid PNG, JPEG or EXR") from err
+
+
+def write_image(path: str | Path, image: np.ndarray) -> None:
+    """Write linear float data: EXR as is, PNG/JPEG sRGB-encoded (8-bit). Atomic."""
+    path = Path(path)
+    image = np.asarray(image, dtype=np.float32)
+    if image.ndim == 2:
+        image = image[..., None]
+    suffix = path.suffix.lower()
+    with fsio.atomic_path(path) as tmp:
+        if suffix == ".exr":
+            import OpenEXR
+
+            if image.shape[-1] == 1:
+                image = np.repeat(image, 3, -1)
+            name = "RGBA" if image.shape[-1] == 4 else "RGB"
+            header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+            with OpenEXR.File(header, {name: np.ascontiguousarray(image)}) as f:
+                f.write(str(tmp))
+        else:
+            from PIL import Image
+
+            enc = linear_to_srgb(image[..., :3])
+            if image.shape[-1] == 4:
+                enc = np.concatenate([enc, np.clip(image[..., 3:], 0, 1)], -1)
+            data = np.round(enc * 255).astype(np.uint8)
+            if data.shape[-1] == 1:
+                data = data[..., 0]
+            Image.fromarray(data).save(tmp, format="PNG" if suffix == ".png" else "JPEG")
+
+
+def write_mask(path: str | Path, mask: np.ndarray) -> None:
+    """Write a [0, 1] mask as an 8-bit greyscale PNG (no sRGB curve). Atomic."""
+    from PIL import Image
+
+    data = np.round(np.clip(mask, 0, 1) * 255).astype(np.uint8)
+    with fsio.atomic_path(path) as tmp:
+        Image.fromarray(data).save(tmp, format="PNG")

@@ -1,0 +1,49 @@
+"""Checks a capture before any work starts, so bad input fails fast with one clear line."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..errors import InputError, require
+from .format import check_pose
+from .images import image_size, read_mask, read_rgba
+from .model import Capture
+
+
+def validate_environment(capture: Capture) -> None:
+    env = capture.environment
+    if env is None:
+        return
+    arr, _ = read_rgba(env.path)
+    h, w = arr.shape[:2]
+    require(w == 2 * h, env.path, f"environment map is {w}x{h}, not equirectangular (2:1)",
+            "use a latitude-longitude (equirectangular) HDR with width = 2 x height")
+    require(bool(np.all(np.isfinite(arr[..., :3]))), env.path,
+            "environment map contains NaN or Inf pixels", "re-export the HDR map")
+
+
+def validate_capture(capture: Capture, check_masks: bool = True) -> None:
+    """Raise :class:`InputError` on the first problem found."""
+    with_mask = [f for f in capture.frames if f.mask is not None]
+    require(not with_mask or len(with_mask) == len(capture.frames), with_mask[0].mask if with_mask else None,
+            f"{len(with_mask)} masks for {len(capture.frames)} frames",
+            "give one mask per frame (or none at all)")
+    mask_area = 0.0
+    for frame in capture.frames:
+        check_pose(frame.camera.camera_to_world, frame.image, f"frame {frame.name}")
+        w, h = image_size(frame.image)
+        require((w, h) == (frame.camera.width, frame.camera.height), frame.image,
+                f"image is {w}x{h} but its camera says {frame.camera.width}x{frame.camera.height}",
+                "fix the intrinsics or re-export the frame")
+        for path in (frame.mask, frame.material_mask):
+            if path is None:
+                continue
+            mw, mh = image_size(path)
+            require((mw, mh) == (w, h), path, f"mask is {mw}x{mh} but its frame is {w}x{h}",
+                    "resize the mask to the frame or re-export it")
+        if check_masks and frame.mask is not None:
+            mask_area += float(read_mask(frame.mask).mean())
+    if check_masks and with_mask:
+        require(mask_area > 0, with_mask[0].mask.parent, "every mask is empty",
+                "check the mask polarity (object = white) and the mask files")
+    validate_environment(capture)

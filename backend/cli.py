@@ -1,0 +1,65 @@
+"""Command line: ``python -m backend <command> [options]``.
+
+Each command lives in ``backend/commands/<name>.py`` with ``add_arguments(parser)`` and
+``run(args) -> int``; modules load lazily so ``--help`` stays fast. Bad input ends with
+one line on stderr and exit code 2; Ctrl-C or SIGTERM cancels cleanly (exit code 130)."""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import signal
+import sys
+
+from . import __version__
+from .errors import EXIT_BAD_INPUT, InputError
+
+COMMANDS = {
+    "synth": "Render a synthetic capture of a mesh (or the built-in procedural object).",
+    "import": "Convert an importable capture (transforms.json, COLMAP, IDR npz, Middlebury) to our format.",
+    "reconstruct": "Refine a mesh and material until path-traced renders match the capture.",
+    "evaluate": "Compare a reconstruction with ground truth: Chamfer, F1, PSNR/SSIM, albedo RMSE.",
+    "capture-from-video": "Turn a phone video, masks and an HDR map into a capture (frames, SfM, lighting).",
+    "bench": "Benchmarks: geometry, material, sweep, calibrate, stability, effects.",
+    "check": "Report whether this interpreter can run the backend (for the Blender add-on).",
+    "demo": "Synthesise the built-in procedural object, reconstruct it and print the metrics.",
+}
+
+
+def _module(name: str):
+    return importlib.import_module(f".commands.{name.replace('-', '_')}", __package__)
+
+
+def build_parser(argv: list[str]) -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="python -m backend", description=__doc__.split("\n\n")[0])
+    parser.add_argument("--version", action="version", version=f"shape-from-tracing {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    wanted = next((a for a in argv if not a.startswith("-")), None)
+    for name, help_text in COMMANDS.items():
+        p = sub.add_parser(name, help=help_text, description=help_text)
+        if name == wanted:  # only the chosen command's module is imported
+            _module(name).add_arguments(p)
+            p.set_defaults(func=_module(name).run)
+    return parser
+
+
+def _terminate(signum, frame):
+    raise KeyboardInterrupt
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
+    signal.signal(signal.SIGTERM, _terminate)
+    parser = build_parser(argv)
+    args = parser.parse_args(argv)
+    if not getattr(args, "func", None):
+        parser.print_help()
+        return 0 if not argv else EXIT_BAD_INPUT
+    try:
+        return int(args.func(args) or 0)
+    except InputError as err:
+        print(f"error: {err.line()}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except KeyboardInterrupt:
+        print("cancelled", file=sys.stderr)
+        return 130

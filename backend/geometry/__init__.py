@@ -1,0 +1,1 @@
+"""Triangle meshes: I/O, topology checks, subdivision, simplification, re-meshing, initialisation."""

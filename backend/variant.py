@@ -1,0 +1,71 @@
+"""Choose and load the Mitsuba variant.
+
+``cuda_ad_rgb`` when a CUDA device works, else ``llvm_ad_rgb``. Override with the
+``--variant`` option or the ``SFT_VARIANT`` environment variable. Dr.Jit's LLVM backend
+needs libLLVM >= 17; the one shipped in the virtual environment is used when present."""
+
+from __future__ import annotations
+
+import glob
+import os
+import sys
+from pathlib import Path
+
+from .errors import InputError
+
+_chosen: str | None = None
+
+
+def _find_libllvm() -> str | None:
+    candidates = [Path(sys.prefix) / "lib" / "libLLVM.so"]
+    candidates += sorted(Path(p) for p in glob.glob(str(Path(sys.prefix) / "lib" / "libLLVM*.so*")))
+    for version in (23, 22, 21, 20, 19, 18, 17):
+        candidates += [Path(f"/usr/lib/llvm-{version}/lib/libLLVM.so"),
+                       Path(f"/usr/lib/x86_64-linux-gnu/libLLVM-{version}.so")]
+    for path in candidates:
+        if path.exists():
+            return str(path)
+    return None
+
+
+def configure_llvm() -> None:
+    """Point Dr.Jit at a libLLVM >= 17 unless the user already chose one."""
+    if not os.environ.get("DRJIT_LIBLLVM_PATH"):
+        lib = _find_libllvm()
+        if lib:
+            os.environ["DRJIT_LIBLLVM_PATH"] = lib
+
+
+def _cuda_works() -> bool:
+    import drjit as dr
+    try:
+        return bool(dr.has_backend(dr.JitBackend.CUDA))
+    except Exception:
+        return False
+
+
+def choose(requested: str | None = None, announce=None) -> str:
+    """Set the Mitsuba variant once per process and return its name."""
+    global _chosen
+    configure_llvm()
+    import mitsuba as mi
+
+    requested = requested or os.environ.get("SFT_VARIANT") or None
+    if _chosen and (requested in (None, _chosen)):
+        return _chosen
+    if requested:
+        if requested not in mi.variants():
+            raise InputError(None, f"unknown Mitsuba variant '{requested}'",
+                             f"use one of {', '.join(mi.variants())}")
+        variant = requested
+    else:
+        variant = "cuda_ad_rgb" if _cuda_works() else "llvm_ad_rgb"
+    try:
+        mi.set_variant(variant)
+    except Exception as err:  # Dr.Jit reports a missing backend as ImportError/RuntimeError
+        raise InputError(None, f"Mitsuba variant '{variant}' cannot start ({err})",
+                         "run ./dev.sh setup, or set SFT_VARIANT to another variant") from err
+    _chosen = variant
+    if announce:
+        announce("variant", variant=variant, llvm=os.environ.get("DRJIT_LIBLLVM_PATH"))
+    return variant
