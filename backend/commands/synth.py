@@ -1,0 +1,58 @@
+"""``synth``: render a synthetic capture of a mesh (or the built-in procedural object)."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+from .. import fsio, variant
+from ..events import Emitter
+from ..synth.capture import SynthSpec, synthesize
+
+
+def add_arguments(parser):
+    d = SynthSpec()
+    parser.add_argument("--out", required=True, type=Path, help="capture folder to write (must be new or empty)")
+    parser.add_argument("--mesh", default=d.mesh, help="mesh file (OBJ/PLY), or 'blob' for the built-in object")
+    parser.add_argument("--up", choices=["z", "y"], default=d.up, help="up axis of the mesh file")
+    parser.add_argument("--views", type=int, default=d.views, help="cameras on a Fibonacci sphere")
+    parser.add_argument("--resolution", type=int, default=d.resolution, help="image width = height, pixels")
+    parser.add_argument("--lighting", choices=["points", "env"], default=d.lighting,
+                        help="two point lights per camera (the paper's layout) or an environment map")
+    parser.add_argument("--env", dest="environment", default=d.environment,
+                        help="HDR environment map, or 'sky' for the procedural sky")
+    parser.add_argument("--env-strength", type=float, default=d.env_strength)
+    parser.add_argument("--env-rotation", dest="env_rotation_deg", type=float, default=d.env_rotation_deg,
+                        help="Z rotation of the environment, degrees")
+    parser.add_argument("--light-intensity", type=float, default=d.light_intensity,
+                        help="W/sr per point light (0 = automatic)")
+    parser.add_argument("--cornell", action="store_true", help="surround the cameras with a Cornell-style room")
+    parser.add_argument("--albedo", default="pattern", help="'pattern' or an RGB triple 'r,g,b'")
+    parser.add_argument("--specular", type=float, default=d.specular)
+    parser.add_argument("--roughness", type=float, default=d.roughness)
+    parser.add_argument("--spp", type=int, default=d.spp, help="samples per pixel")
+    parser.add_argument("--max-depth", type=int, default=d.max_depth, help="path length (2 = direct light only)")
+    parser.add_argument("--held-out", type=int, default=d.held_out, help="held-out (and relit) views")
+    parser.add_argument("--relit-env", dest="relit_environment", default=d.relit_environment,
+                        help="environment for relit ground truth views ('sky2' = procedural)")
+    parser.add_argument("--format", dest="image_format", choices=["exr", "png"], default=d.image_format)
+    parser.add_argument("--seed", type=int, default=d.seed)
+    parser.add_argument("--overwrite", action="store_true", help="replace an existing output folder")
+    parser.add_argument("--variant", help="Mitsuba variant (default: automatic)")
+
+
+def spec_from_args(args) -> SynthSpec:
+    values = {f.name: getattr(args, f.name) for f in dataclasses.fields(SynthSpec) if hasattr(args, f.name)}
+    if values.get("albedo") != "pattern":
+        values["albedo"] = [float(x) for x in str(values["albedo"]).split(",")]
+    return SynthSpec(**values)
+
+
+def run(args) -> int:
+    emit = Emitter()
+    spec = spec_from_args(args)
+    variant.choose(args.variant, emit)
+    with fsio.atomic_dir(args.out, replace=args.overwrite) as tmp:
+        capture = synthesize(spec, tmp, emit)
+    emit("done", capture=str(args.out), frames=len(capture.frames))
+    return 0

@@ -1,0 +1,1 @@
+"""Mitsuba scene construction and rendering of captures (forward and differentiable)."""

@@ -1,0 +1,170 @@
+"""Mitsuba scenes for a capture: one object mesh, its cameras and its lights.
+
+Conventions are exact translations of the capture model (docs/capture-format.md):
+Mitsuba cameras look along +z with x to the left, so ``to_world = camera_to_world @
+diag(-1, 1, -1, 1)``; Mitsuba's principal-point offset is the negated offset of (cx, cy)
+from the image centre in units of the image size; the environment map's Blender lookup
+is an axis permutation of Mitsuba's, so it needs no resampling."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+
+from ..capture.images import read_rgba
+from ..capture.model import Camera, Environment, PointLight
+from ..geometry.mesh import Mesh
+from . import bsdf as _bsdf  # noqa: F401  (registers sft_surface)
+
+GL_TO_MITSUBA_CAMERA = np.diag([-1.0, 1.0, -1.0, 1.0])
+# Mitsuba envmap local axes (x, y, z) <- Blender lookup axes (y', z', x').
+_ENV_PERMUTATION = np.array([[0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [1.0, 0.0, 0.0]])
+
+INTEGRATORS = ("path", "prb", "direct", "direct_projective", "prb_projective")
+
+
+@dataclass
+class RenderSettings:
+    """How to render. ``max_depth`` counts path vertices as Mitsuba does: 2 = direct light only."""
+
+    spp: int = 16
+    max_depth: int = 3
+    integrator: str = "path"
+    hide_emitters: bool = True  # camera rays that miss the object see black
+    sppc: int = 0  # projective integrators: continuous part uses spp
+    sppp: int = 4  # primary-visibility (silhouette) samples per pixel
+    sppi: int = 0  # indirect-visibility samples; 0 unless shadows change with the geometry
+    rr_depth: int = 100
+
+    def integrator_dict(self) -> dict:
+        if self.integrator not in INTEGRATORS:
+            raise ValueError(f"unknown integrator {self.integrator}")
+        d = {"type": self.integrator, "hide_emitters": self.hide_emitters}
+        if self.integrator == "direct":
+            d = {"type": "direct", "hide_emitters": self.hide_emitters}
+            return d
+        if self.integrator != "direct_projective":
+            d["max_depth"] = self.max_depth
+            d["rr_depth"] = self.rr_depth
+        if self.integrator.endswith("projective"):
+            d.update(sppc=self.sppc or self.spp, sppp=self.sppp, sppi=self.sppi)
+        return d
+
+
+def sensor_dict(camera: Camera, spp: int, rgba: bool = False) -> dict:
+    if abs(camera.fx - camera.fy) > 1e-3 * camera.fx:
+        raise ValueError("non-square pixels: undistort/resample the capture first")
+    w, h = camera.width, camera.height
+    return {
+        "type": "perspective",
+        "fov": float(np.degrees(2 * np.arctan(w / (2 * camera.fx)))),
+        "fov_axis": "x",
+        "principal_point_offset_x": -(camera.cx - w / 2) / w,
+        "principal_point_offset_y": -(camera.cy - h / 2) / h,
+        "near_clip": 1e-3,
+        "to_world": mi.ScalarTransform4f(camera.camera_to_world @ GL_TO_MITSUBA_CAMERA),
+        "film": {"type": "hdrfilm", "width": w, "height": h, "rfilter": {"type": "box"},
+                 "pixel_format": "rgba" if rgba else "rgb", "sample_border": True},
+        "sampler": {"type": "independent", "sample_count": spp},
+    }
+
+
+def environment_to_world(rotation_z_deg: float) -> np.ndarray:
+    a = np.radians(rotation_z_deg)
+    rz = np.array([[np.cos(a), -np.sin(a), 0], [np.sin(a), np.cos(a), 0], [0, 0, 1.0]])
+    m = np.eye(4)
+    m[:3, :3] = rz.T @ _ENV_PERMUTATION.T
+    return m
+
+
+def environment_dict(env: Environment, pixels: np.ndarray | None = None) -> dict:
+    pixels = read_rgba(env.path)[0][..., :3] if pixels is None else pixels
+    return {"type": "envmap", "bitmap": mi.Bitmap(np.ascontiguousarray(pixels, dtype=np.float32)),
+            "scale": float(env.strength),
+            "to_world": mi.ScalarTransform4f(environment_to_world(env.rotation_z_deg))}
+
+
+def point_light_dict(light: PointLight) -> dict:
+    return {"type": "point", "position": [float(x) for x in light.position],
+            "intensity": {"type": "rgb", "value": [float(x) for x in light.intensity]}}
+
+
+def mitsuba_mesh(mesh: Mesh, bsdf, name: str = "object") -> mi.Mesh:
+    props = mi.Properties()
+    props["bsdf"] = bsdf
+    m = mi.Mesh(name, mesh.n_vertices, mesh.n_faces, props=props, has_vertex_normals=True)
+    params = mi.traverse(m)
+    params["vertex_positions"] = mi.Float(mesh.vertices.astype(np.float32).ravel())
+    params["faces"] = mi.UInt32(mesh.faces.astype(np.uint32).ravel())
+    params.update()
+    return m
+
+
+class SceneRenderer:
+    """Renders one object mesh from a capture's views under their lights.
+
+    Per-view point lights are set before each render (the scene holds as many point
+    emitters as the frame with the most lights; unused ones get zero intensity)."""
+
+    def __init__(self, mesh: Mesh, field, cameras: list[Camera], lights: list[list[PointLight]],
+                 environment: Environment | None = None, settings: RenderSettings | None = None,
+                 extra_shapes: dict | None = None, env_pixels: np.ndarray | None = None,
+                 rgba: bool = False):
+        self.settings = settings or RenderSettings()
+        self.cameras = cameras
+        self.lights = lights
+        self.bsdf = _bsdf.SurfaceBSDF(mi.Properties(), field)
+        self.field = field
+        scene = {"type": "scene", "integrator": self.settings.integrator_dict(),
+                 "object": mitsuba_mesh(mesh, self.bsdf)}
+        self.n_lights = max((len(ls) for ls in lights), default=0)
+        for k in range(self.n_lights):
+            scene[f"light{k}"] = point_light_dict(PointLight(np.zeros(3), np.zeros(3)))
+        if environment is not None:
+            scene["environment"] = environment_dict(environment, env_pixels)
+        scene.update(extra_shapes or {})
+        self.scene = mi.load_dict(scene)
+        self.params = mi.traverse(self.scene)
+        self.sensors = [mi.load_dict(sensor_dict(c, self.settings.spp, rgba)) for c in cameras]
+        self._light_view = None
+
+    @property
+    def vertex_key(self) -> str:
+        return "object.vertex_positions"
+
+    def set_mesh(self, mesh: Mesh) -> None:
+        self.params["object.vertex_positions"] = mi.Float(mesh.vertices.astype(np.float32).ravel())
+        self.params["object.faces"] = mi.UInt32(mesh.faces.astype(np.uint32).ravel())
+        self.params.update()
+
+    def set_field(self, field) -> None:
+        self.field = field
+        self.bsdf.field = field
+
+    def _set_lights(self, view: int) -> None:
+        if self._light_view == view or self.n_lights == 0:
+            return
+        lights = self.lights[view]
+        for k in range(self.n_lights):
+            light = lights[k] if k < len(lights) else PointLight(np.zeros(3), np.zeros(3))
+            pos = mi.Point3f(*map(float, light.position))
+            val = mi.Color3f(*map(float, light.intensity))
+            dr.make_opaque(pos, val)
+            self.params[f"light{k}.position"] = pos
+            self.params[f"light{k}.intensity.value"] = val
+        self.params.update()
+        self._light_view = view
+
+    def render(self, view: int, seed: int = 0, spp: int | None = None, params=None):
+        """Render one view: an (H, W, 3) Dr.Jit tensor, (H, W, 4) with coverage as alpha
+        when built with ``rgba``; differentiable w.r.t. ``params``."""
+        self._set_lights(view)
+        return mi.render(self.scene, params if params is not None else self.params,
+                         sensor=self.sensors[view], seed=seed, spp=spp or self.settings.spp)
+
+    def render_numpy(self, view: int, seed: int = 0, spp: int | None = None) -> np.ndarray:
+        with dr.suspend_grad():
+            return np.array(self.render(view, seed, spp))

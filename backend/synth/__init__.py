@@ -1,0 +1,1 @@
+"""Synthetic captures: procedural objects and environments, camera and light layouts, rendering."""
