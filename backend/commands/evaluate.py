@@ -1,0 +1,193 @@
+"""Compare a reconstruction with ground truth: Chamfer-L1 and F1, albedo RMSE, PSNR/SSIM.
+
+The prediction is a mesh file or a run folder holding ``result.ply``. The truth is a mesh
+file or a capture folder whose ``capture.json`` names ``ground_truth.mesh``. Geometry is
+compared in the truth's normalised frame (:mod:`backend.metrics.geometry`); albedo RMSE is
+added when both meshes carry vertex colours; PSNR/SSIM are added for ``--renders``, a folder
+of predicted renders of the truth capture's held-out (or relit, ``--views relit``) views named
+``<frame name>.exr`` (or ``.png``)."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+
+from .. import fsio
+from ..errors import InputError, require
+from ..geometry.mesh import Mesh, load_mesh
+from ..metrics import geometry as geo
+from ..metrics.image import albedo_rmse, image_metrics
+
+RESULT = "result.ply"
+RENDER_SUFFIXES = (".exr", ".hdr", ".png", ".jpg", ".jpeg")
+VIEW_SETS = ("held_out", "relit")  # keys of a synthetic capture's ground_truth
+
+
+def add_arguments(parser):
+    parser.add_argument("prediction", metavar="RUN_OR_MESH",
+                        help=f"reconstructed mesh, or a run folder containing {RESULT}")
+    parser.add_argument("--truth", required=True, metavar="GT",
+                        help="ground-truth mesh, or a synthetic capture folder with ground_truth.mesh")
+    parser.add_argument("--out", metavar="JSON", help="write the metrics as JSON here")
+    parser.add_argument("--samples", type=int, default=geo.DEFAULT_SAMPLES,
+                        help="surface samples per mesh (default: %(default)s)")
+    parser.add_argument("--seed", type=int, default=0, help="sampling seed (default: %(default)s)")
+    parser.add_argument("--align", choices=("none", "icp"), default="none",
+                        help="'icp': fit a similarity transform of the prediction onto the truth "
+                             "first (for reconstructions in another frame); default: none")
+    parser.add_argument("--renders", metavar="DIR",
+                        help="predicted renders of the truth capture's held-out (or --views) views "
+                             "(<frame name>.exr or .png) for PSNR/SSIM")
+    parser.add_argument("--views", choices=VIEW_SETS, default="held_out",
+                        help="which ground-truth views --renders shows (default: %(default)s)")
+
+
+def _mesh(path: Path, role: str) -> Mesh:
+    mesh = load_mesh(path)
+    fix = f"re-export the {role} mesh"
+    require(mesh.n_faces > 0, path, "mesh has no faces", fix)
+    require(bool(np.all(np.isfinite(mesh.vertices))), path, "mesh has NaN or Inf vertices", fix)
+    require(int(mesh.faces.min()) >= 0 and int(mesh.faces.max()) < mesh.n_vertices, path,
+            "mesh faces index missing vertices", fix)
+    require(float(mesh.face_areas().sum()) > 0, path, "mesh has no surface area", fix)
+    return mesh
+
+
+def prediction_path(path: str | Path) -> Path:
+    """The mesh to evaluate: the file itself or ``RUN/result.ply``."""
+    path = Path(path)
+    if path.is_dir():
+        require((path / RESULT).is_file(), path / RESULT, "run folder has no result",
+                "wait for the run to finish or give a mesh file")
+        return path / RESULT
+    require(path.is_file(), path, "prediction not found", "give a mesh file or a run folder")
+    return path
+
+
+def truth_capture(path: str | Path):
+    """The capture behind ``--truth``, or None when it is a mesh file."""
+    from ..capture.format import FILENAME, load_capture
+
+    path = Path(path)
+    if path.is_dir() or path.name == FILENAME:
+        require((path / FILENAME).is_file() if path.is_dir() else path.is_file(),
+                path / FILENAME if path.is_dir() else path, "ground-truth capture has no capture.json",
+                "give a synthetic capture folder or a ground-truth mesh file")
+        return load_capture(path, validate=False)
+    require(path.is_file(), path, "ground truth not found", "give a mesh file or a synthetic capture folder")
+    return None
+
+
+def _truth_mesh_path(truth: Path, capture) -> Path:
+    if capture is None:
+        return truth
+    rel = capture.ground_truth.get("mesh")
+    require(bool(rel), capture.root / "capture.json", "capture has no ground_truth.mesh",
+            "give the ground-truth mesh file with --truth")
+    return capture.path(rel)
+
+
+def _view_metrics(capture, renders: Path, views: str) -> dict:
+    """PSNR/SSIM of the renders in ``renders`` against the truth capture's ``views`` set."""
+    from ..capture.format import load_capture
+    from ..capture.images import read_linear_rgb, read_mask
+
+    require(capture is not None, None, "--renders needs a ground-truth capture",
+            f"give --truth a synthetic capture folder with ground_truth.{views}")
+    rel = capture.ground_truth.get(views)
+    require(bool(rel), capture.root / "capture.json", f"capture has no ground_truth.{views} views",
+            "synthesise the capture with held-out views or leave out --renders")
+    require(renders.is_dir(), renders, "renders folder not found", "give the folder of predicted renders")
+    view_set = load_capture(capture.path(rel))
+    predicted, targets, masks = [], [], []
+    for frame in view_set.frames:
+        found = [renders / f"{frame.name}{s}" for s in RENDER_SUFFIXES if (renders / f"{frame.name}{s}").is_file()]
+        require(bool(found), renders / f"{frame.name}.exr", f"no render of view '{frame.name}'",
+                f"render every {views} view into the renders folder")
+        image = read_linear_rgb(found[0])
+        target = read_linear_rgb(frame.image)
+        require(image.shape == target.shape, found[0],
+                f"render is {image.shape[1]}x{image.shape[0]} but the view is {target.shape[1]}x{target.shape[0]}",
+                "render at the view's camera resolution")
+        predicted.append(image)
+        targets.append(target)
+        masks.append(read_mask(frame.mask) if frame.mask is not None else None)
+    if all(m is None for m in masks):
+        masks = None
+    elif any(m is None for m in masks):
+        raise InputError(view_set.root, "only some views have masks", "give every view a mask or none")
+    try:
+        return dict(image_metrics(predicted, targets, masks), set=views)
+    except ValueError as err:
+        raise InputError(view_set.root, str(err), "check the view masks") from err
+
+
+def evaluate(prediction: str | Path, truth: str | Path, samples: int = geo.DEFAULT_SAMPLES, seed: int = 0,
+             align: str = "none", renders: str | Path | None = None, views: str = "held_out") -> dict:
+    """All metrics that the inputs allow, as a dict (see the module docstring).
+
+    PSNR is ``inf`` for a view rendered exactly; pass the dict through :func:`json_safe`
+    before writing JSON."""
+    require(samples >= 1, None, f"--samples is {samples}", "give at least 1 sample per mesh")
+    pred_path = prediction_path(prediction)
+    capture = truth_capture(truth)
+    truth_path = _truth_mesh_path(Path(truth), capture)
+    pred, gt = _mesh(pred_path, "predicted"), _mesh(truth_path, "ground-truth")
+    report = {"prediction": str(pred_path), "truth": str(truth_path), "alignment": {"method": align}}
+    if align == "icp":
+        matrix = geo.align_by_icp(pred, gt, seed=seed)
+        pred = pred.transformed(matrix)
+        report["alignment"].update(matrix=matrix.tolist(), scale=float(np.cbrt(np.linalg.det(matrix[:3, :3]))))
+    report["geometry"] = geo.geometry_metrics(pred, gt, samples, seed)
+    if pred.vertex_colors is not None and gt.vertex_colors is not None:
+        pa, ga = geo.corresponding_albedo(pred, gt, samples, seed)
+        report["albedo"] = {"rmse": albedo_rmse(pa, ga), "rmse_scaled": albedo_rmse(pa, ga, fit_scale=True)}
+    if renders is not None:
+        report["images"] = _view_metrics(capture, Path(renders), views)
+    return report
+
+
+def json_safe(value):
+    """The report with non-finite floats as the strings "inf", "-inf", "nan" (JSON has none)."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return "inf" if value > 0 else ("-inf" if value < 0 else "nan")
+    if isinstance(value, dict):
+        return {k: json_safe(v) for k, v in value.items()}
+    if isinstance(value, list):
+        return [json_safe(v) for v in value]
+    return value
+
+
+def table(report: dict) -> str:
+    """A compact human-readable summary of :func:`evaluate`'s report."""
+    g = report["geometry"]
+    rows = [("chamfer_l1", f"{g['chamfer_l1']:.5f}",
+             f"accuracy {g['accuracy']:.5f}, completeness {g['completeness']:.5f}; "
+             f"units of the truth's longest side ({g['truth_extent']:.4g})")]
+    for key in g:
+        if key.startswith("f1@"):
+            tau = key[3:]
+            rows.append((key, f"{g[key]:.2f} %",
+                         f"precision {g['precision@' + tau]:.2f}, recall {g['recall@' + tau]:.2f}"))
+    if report["alignment"].get("scale") is not None:
+        rows.append(("alignment", "icp", f"scale {report['alignment']['scale']:.4g}"))
+    if "albedo" in report:
+        rows.append(("albedo_rmse", f"{report['albedo']['rmse']:.4f}",
+                     f"{report['albedo']['rmse_scaled']:.4f} after per-channel scale"))
+    if "images" in report:
+        im = report["images"]
+        rows.append(("psnr", f"{im['psnr']:.2f} dB", f"{len(im['views'])} {im['set']} views, sRGB"))
+        rows.append(("ssim", f"{im['ssim']:.4f}", ""))
+    width = max(len(r[1]) for r in rows)
+    return "\n".join(f"{name:<12} {value:>{width}}  {note}".rstrip() for name, value, note in rows)
+
+
+def run(args) -> int:
+    report = evaluate(args.prediction, args.truth, args.samples, args.seed, args.align, args.renders,
+                      args.views)
+    print(table(report))
+    if args.out:
+        fsio.write_json(args.out, json_safe(report))
+    return 0

@@ -1,0 +1,212 @@
+"""Geometry metrics: area-weighted surface samples, Chamfer-L1, precision/recall/F1, alignment.
+
+Convention: both meshes go through the same affine map, the one that moves
+the ground truth's bounding-box centre to the origin and scales its longest bounding-box side
+to 1, so distances are fractions of the ground truth's size. Each mesh is sampled with
+``samples`` area-weighted points; a distance is the distance to the nearest sample of the
+other mesh (``scipy.spatial.cKDTree``). Both meshes are sampled with the same seed, so a mesh
+compared with itself scores exactly 0. Two independent samplings of one surface (as for a
+remeshed copy) score about ``0.5 / sqrt(samples per unit area)`` instead: the noise floor of
+the protocol, at 100k samples about 0.002 Chamfer and F1@0.005 of 96-99 for typical objects."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from ..geometry.mesh import Mesh
+
+DEFAULT_SAMPLES = 100_000
+DEFAULT_TAUS = (0.01, 0.005)
+
+
+@dataclass
+class SurfaceSamples:
+    points: np.ndarray  # (N, 3) float64
+    faces: np.ndarray  # (N,) int64, the face each point lies on
+    barycentric: np.ndarray  # (N, 3) float64 weights of that face's vertices
+
+
+def sample_surface(mesh: Mesh, n: int, seed: int = 0) -> SurfaceSamples:
+    """``n`` points uniformly distributed over the surface (faces chosen by area).
+
+    Deterministic for a given mesh, ``n`` and ``seed``. Raises ValueError for a mesh
+    without surface area."""
+    areas = mesh.face_areas()
+    cdf = np.cumsum(areas)
+    if not len(cdf) or not np.isfinite(cdf[-1]) or cdf[-1] <= 0:
+        raise ValueError("mesh has no surface area")
+    rng = np.random.default_rng(seed)
+    faces = np.searchsorted(cdf, rng.random(n) * cdf[-1], side="right")
+    faces = np.minimum(faces, len(cdf) - 1)
+    r = rng.random((n, 2))
+    flip = r.sum(1) > 1
+    r[flip] = 1 - r[flip]
+    bary = np.column_stack([1 - r[:, 0] - r[:, 1], r[:, 0], r[:, 1]])
+    corners = mesh.vertices[mesh.faces[faces]]  # (N, 3 corners, 3)
+    points = np.einsum("nk,nkd->nd", bary, corners)
+    return SurfaceSamples(points, faces, bary)
+
+
+def interpolate(mesh: Mesh, values: np.ndarray, samples: SurfaceSamples) -> np.ndarray:
+    """Per-vertex ``values`` (V, C) interpolated at surface samples -> (N, C)."""
+    corner_values = np.asarray(values, dtype=np.float64)[mesh.faces[samples.faces]]
+    return np.einsum("nk,nkc->nc", samples.barycentric, corner_values)
+
+
+def normalisation(truth: Mesh) -> np.ndarray:
+    """4x4 map: the truth's bounding-box centre to the origin, its longest side to length 1."""
+    lo, hi = truth.bounds()
+    extent = float((hi - lo).max())
+    if not np.isfinite(extent) or extent <= 0:
+        raise ValueError("ground-truth mesh has an empty bounding box")
+    m = np.eye(4)
+    m[:3, :3] /= extent
+    m[:3, 3] = -0.5 * (lo + hi) / extent
+    return m
+
+
+def apply(matrix: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """Apply a 4x4 affine map to (N, 3) points."""
+    return points @ matrix[:3, :3].T + matrix[:3, 3]
+
+
+def distance_metrics(pred_points: np.ndarray, gt_points: np.ndarray,
+                     taus: tuple[float, ...] = DEFAULT_TAUS) -> dict:
+    """Chamfer-L1 and precision/recall/F1 (percent) between two point sets.
+
+    ``accuracy`` is the mean distance from predicted points to the truth, ``completeness``
+    the mean distance from the truth to the prediction, ``chamfer_l1`` their mean. At each
+    threshold tau, precision is the share of predicted points within tau of the truth,
+    recall the share of truth points within tau of the prediction."""
+    d_pred, _ = cKDTree(gt_points).query(pred_points, workers=-1)
+    d_gt, _ = cKDTree(pred_points).query(gt_points, workers=-1)
+    out = {"chamfer_l1": 0.5 * (d_pred.mean() + d_gt.mean()),
+           "accuracy": d_pred.mean(), "completeness": d_gt.mean()}
+    for tau in taus:
+        p = 100.0 * np.mean(d_pred < tau)
+        r = 100.0 * np.mean(d_gt < tau)
+        out[f"precision@{tau:g}"] = p
+        out[f"recall@{tau:g}"] = r
+        out[f"f1@{tau:g}"] = 2 * p * r / (p + r) if p + r > 0 else 0.0
+    return {k: float(v) for k, v in out.items()}
+
+
+def geometry_metrics(pred: Mesh, truth: Mesh, samples: int = DEFAULT_SAMPLES, seed: int = 0,
+                     taus: tuple[float, ...] = DEFAULT_TAUS) -> dict:
+    """Chamfer-L1 and F1 of ``pred`` against ``truth`` in the truth's normalised frame.
+
+    Distances are fractions of the truth's longest bounding-box side (``truth_extent``, in
+    world units, is reported so they can be converted back)."""
+    norm = normalisation(truth)
+    p = apply(norm, sample_surface(pred, samples, seed).points)
+    g = apply(norm, sample_surface(truth, samples, seed).points)
+    out = distance_metrics(p, g, taus)
+    out.update(samples=int(samples), seed=int(seed), truth_extent=float(1.0 / norm[0, 0]))
+    return out
+
+
+def align_similarity(source: np.ndarray, target: np.ndarray, with_scale: bool = True) -> np.ndarray:
+    """Least-squares similarity (Umeyama 1991) mapping ``source`` points onto ``target``.
+
+    Both are (N, 3) arrays of corresponding points; returns a 4x4 matrix M with
+    ``target ~ s R source + t``."""
+    source = np.asarray(source, dtype=np.float64)
+    target = np.asarray(target, dtype=np.float64)
+    mu_s, mu_t = source.mean(0), target.mean(0)
+    xs, xt = source - mu_s, target - mu_t
+    u, d, vt = np.linalg.svd(xt.T @ xs / len(source))
+    sign = np.eye(3)
+    if np.linalg.det(u) * np.linalg.det(vt) < 0:
+        sign[2, 2] = -1
+    rot = u @ sign @ vt
+    var_s = (xs ** 2).sum(1).mean()
+    scale = float(np.trace(np.diag(d) @ sign) / var_s) if with_scale and var_s > 0 else 1.0
+    m = np.eye(4)
+    m[:3, :3] = scale * rot
+    m[:3, 3] = mu_t - scale * rot @ mu_s
+    return m
+
+
+def _bbox_alignment(source: Mesh, target: Mesh) -> np.ndarray:
+    (slo, shi), (tlo, thi) = source.bounds(), target.bounds()
+    s = float((thi - tlo).max() / max((shi - slo).max(), 1e-30))
+    m = np.eye(4) * s
+    m[3, 3] = 1
+    m[:3, 3] = 0.5 * (tlo + thi) - s * 0.5 * (slo + shi)
+    return m
+
+
+def _rotation(omega: np.ndarray) -> np.ndarray:
+    angle = float(np.linalg.norm(omega))
+    if angle < 1e-15:
+        return np.eye(3)
+    k = omega / angle
+    kx = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+    return np.eye(3) + np.sin(angle) * kx + (1 - np.cos(angle)) * kx @ kx
+
+
+def _plane_step(p, q, n, with_scale: bool) -> np.ndarray:
+    """Similarity update (4x4) that moves points p towards the planes (q, n), linearised."""
+    centre = q.mean(0)
+    p, q = p - centre, q - centre
+    cols = [np.cross(p, n), n] + ([(p * n).sum(1, keepdims=True)] if with_scale else [])
+    x = np.linalg.lstsq(np.hstack(cols), -((p - q) * n).sum(1), rcond=1e-9)[0]
+    step = np.eye(4)
+    step[:3, :3] = (np.exp(x[6]) if with_scale else 1.0) * _rotation(x[:3])
+    step[:3, 3] = x[3:6] + centre - step[:3, :3] @ centre
+    return step
+
+
+def align_by_icp(source: Mesh, target: Mesh, iterations: int = 50, samples: int = 20_000,
+                 seed: int = 0, with_scale: bool = True, init: np.ndarray | None = None,
+                 keep: float = 0.9) -> np.ndarray:
+    """Similarity transform (4x4) that moves ``source`` onto ``target`` by ICP.
+
+    Starts from ``init`` or, by default, from matching bounding-box centres and longest sides
+    (no rotation), then alternates nearest-neighbour matching in both directions with a
+    point-to-plane least-squares update of rotation, translation and (``with_scale``) scale.
+    The worst ``1 - keep`` of each direction's matches are dropped, so stray surfaces do not
+    pull the fit. It finds the nearest local optimum, so the start must be within a few tens
+    of degrees of the answer; :func:`align_similarity` gives a start from correspondences."""
+    src_s = sample_surface(source, samples, seed)
+    tgt_s = sample_surface(target, samples, seed + 1)
+    src, src_n = src_s.points, source.face_normals()[src_s.faces]
+    tgt, tgt_n = tgt_s.points, target.face_normals()[tgt_s.faces]
+    tgt_tree = cKDTree(tgt)
+    m = _bbox_alignment(source, target) if init is None else np.asarray(init, dtype=np.float64)
+    for _ in range(iterations):
+        moved = apply(m, src)
+        moved_n = src_n @ np.linalg.inv(m[:3, :3])  # normals transform by the inverse transpose
+        d1, i1 = tgt_tree.query(moved, workers=-1)
+        d2, i2 = cKDTree(moved).query(tgt, workers=-1)
+        k1 = d1 <= np.quantile(d1, keep)
+        k2 = d2 <= np.quantile(d2, keep)
+        step = _plane_step(np.concatenate([moved[k1], moved[i2[k2]]]),
+                           np.concatenate([tgt[i1[k1]], tgt[k2]]),
+                           np.concatenate([tgt_n[i1[k1]], moved_n[i2[k2]]]), with_scale)
+        m = step @ m
+        if np.abs(step - np.eye(4)).max() < 1e-9:
+            break
+    return m
+
+
+def corresponding_albedo(pred: Mesh, truth: Mesh, samples: int = DEFAULT_SAMPLES,
+                         seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """Albedo of both meshes at the same surface points: (pred, truth), each (N, 3).
+
+    The truth's vertex colours are interpolated at its surface samples; the prediction's
+    value there is its interpolated vertex colour at its nearest surface sample, out of
+    ``4 * samples`` (drawn with the same seed first, as in :func:`geometry_metrics`, so a
+    mesh compared with itself scores exactly 0). Both meshes need ``vertex_colors``."""
+    if pred.vertex_colors is None or truth.vertex_colors is None:
+        raise ValueError("both meshes need vertex colours")
+    gt_s = sample_surface(truth, samples, seed)
+    same, extra = sample_surface(pred, samples, seed), sample_surface(pred, 3 * samples, seed + 1)
+    pred_s = SurfaceSamples(*(np.concatenate([getattr(same, k), getattr(extra, k)])
+                              for k in ("points", "faces", "barycentric")))
+    _, idx = cKDTree(pred_s.points).query(gt_s.points, workers=-1)
+    pred_albedo = interpolate(pred, pred.vertex_colors, pred_s)[idx]
+    return pred_albedo, interpolate(truth, truth.vertex_colors, gt_s)
