@@ -1,0 +1,105 @@
+"""The effects selector measures each effect and keeps only those a scene calls for."""
+
+import numpy as np
+import pytest
+
+from backend import variant
+
+variant.choose()
+
+from backend.capture.model import Camera, Environment, PointLight  # noqa: E402
+from backend.geometry.mesh import Mesh  # noqa: E402
+from backend.render import effects  # noqa: E402
+from backend.render.fields import ConstantField, VertexField  # noqa: E402
+from backend.render.scene import RenderSettings, SceneRenderer  # noqa: E402
+from backend.synth import layout, procedural  # noqa: E402
+
+RES = 48
+
+
+def _decide(mesh, truth_field, cameras, lights, env=None, env_pixels=None):
+    truth = SceneRenderer(mesh, truth_field, cameras, lights, env, RenderSettings(spp=64, max_depth=6),
+                          env_pixels=env_pixels, rgba=True)
+    targets = [truth.render_numpy(i) for i in range(len(cameras))]
+    estimate = SceneRenderer(mesh, ConstantField([0.5, 0.5, 0.5], 0.2, 0.4), cameras, lights, env,
+                             RenderSettings(spp=16), env_pixels=env_pixels)
+    return effects.decide(estimate, [t[..., :3] for t in targets], [t[..., 3] for t in targets],
+                          ["env" if env else "point"])
+
+
+def _orbit(mesh, n=4):
+    lo, hi = mesh.bounds()
+    return layout.orbit_cameras(layout.fibonacci_sphere(n), (lo + hi) / 2, np.linalg.norm(hi - lo) / 2, RES)
+
+
+def _quads(quads):
+    verts, faces, colours = [], [], []
+    for k, (p0, e1, e2, colour) in enumerate(quads):
+        p0, e1, e2 = (np.asarray(a, float) for a in (p0, e1, e2))
+        verts.append([p0, p0 + e1, p0 + e1 + e2, p0 + e2])
+        faces.append(np.array([[0, 1, 2], [0, 2, 3]]) + 4 * k)
+        colours += [colour] * 4
+    return Mesh(np.vstack(verts), np.vstack(faces)), np.asarray(colours, np.float32)
+
+
+def test_convex_diffuse_object_under_environment_needs_direct_light_only():
+    sphere = procedural.icosphere(3)
+    env = Environment("procedural", 1.0, 0.0)
+    d = _decide(sphere, ConstantField([0.6, 0.5, 0.4], 0.0, 0.5), _orbit(sphere), [[]] * 4, env,
+                procedural.sky(128))
+    assert d.max_depth == 2 and not d.shadows and not d.specular, d.reasons
+    assert d.measured["bounces"]["3"]["relative"] < 1e-3
+    assert d.settings(RenderSettings(), geometry=False).integrator == "prb"
+    assert d.settings(RenderSettings(), geometry=True).integrator == "direct_projective"
+
+
+def test_glossy_object_keeps_the_specular_lobe():
+    blob = procedural.blob(3)
+    albedo = procedural.albedo_pattern(blob.vertices)
+    n = len(albedo)
+    field = VertexField(blob.faces, albedo, np.full(n, 0.4, np.float32), np.full(n, 0.25, np.float32))
+    cams = _orbit(blob)
+    d = _decide(blob, field, cams, [layout.paper_lights(c, 5.0) for c in cams])
+    assert d.specular and d.measured["highlight_ratio"] > 1.5, d.reasons
+
+
+def test_colour_bleeding_corner_keeps_multiple_bounces():
+    corner, colours = _quads([([0, 0, 0], [1, 0, 0], [0, 1, 0], [0.8, 0.8, 0.8]),
+                              ([0, 0, 0], [0, 1, 0], [0, 0, 1], [0.8, 0.1, 0.1]),
+                              ([0, 0, 0], [0, 0, 1], [1, 0, 0], [0.1, 0.1, 0.8])])
+    field = VertexField(corner.faces, colours, np.zeros(len(colours), np.float32), np.full(len(colours), 0.5, np.float32))
+    cams = [Camera(RES, RES, 45.0, 45.0, RES / 2, RES / 2, layout.look_at(np.array([2.2, 2.2, 1.8]) + o, [0.3, 0.3, 0.3]))
+            for o in ([0, 0, 0], [0.4, -0.3, 0], [-0.3, 0.4, 0.2])]
+    lights = [[PointLight(np.array([1.5, 1.5, 2.0]), np.full(3, 4.0))]] * len(cams)
+    d = _decide(corner, field, cams, lights)
+    assert d.max_depth >= 3 and not d.specular, d.reasons
+    assert d.measured["bounces"]["3"]["relative"] > 0.05
+
+
+def test_object_on_a_floor_under_a_low_light_needs_shadow_gradients():
+    floor, _ = _quads([([-2, -2, 0], [4, 0, 0], [0, 4, 0], [0.7] * 3)])
+    box = procedural.icosphere(2, 0.5)
+    box.vertices[:, 2] += 0.5
+    mesh = Mesh(np.vstack([floor.vertices, box.vertices]), np.vstack([floor.faces, box.faces + 4]))
+    cams = [Camera(RES, RES, 40.0, 40.0, RES / 2, RES / 2, layout.look_at(e, [0, 0, 0.3]))
+            for e in ([0, -4, 3], [3, -3, 3], [-3, -2, 3.5])]
+    lights = [[PointLight(np.array([3.0, 1.0, 1.2]), np.full(3, 15.0))]] * len(cams)
+    d = _decide(mesh, ConstantField([0.7, 0.7, 0.7], 0.0, 0.5), cams, lights)
+    assert d.shadows and d.measured["self_shadowing"] > 0.05, d.reasons
+    assert d.settings(RenderSettings(), geometry=True).sppi > 0
+
+
+@pytest.mark.parametrize("spec, measure, overrides", [
+    ("auto", True, {}),
+    ("all", False, {e: True for e in effects.EFFECTS}),
+    ("auto,-shadows", True, {"shadows": False}),
+    ("indirect,specular", False, {"indirect": True, "specular": True, "shadows": False, "silhouettes": True}),
+    ("indirect,-silhouettes", False, {"indirect": True, "specular": False, "shadows": False, "silhouettes": False}),
+])
+def test_effects_option_parsing(spec, measure, overrides):
+    assert effects.parse_effects(spec) == (measure, overrides)
+
+
+def test_unknown_effect_is_rejected():
+    with pytest.raises(ValueError, match="unknown effect"):
+        effects.parse_effects("caustics")
