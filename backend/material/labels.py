@@ -1,0 +1,222 @@
+"""Material labels: per-pixel material masks (given or clustered) -> per-face labels.
+
+Masks are checked before any work: one per frame or none, the frame's size, no overlap
+between per-material masks, every object pixel labelled. Per-face labels are the majority
+vote over the views that see the face's centroid (visibility by ray casting); the share of
+votes that disagree with the majority is reported."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..capture.images import read_mask
+from ..capture.model import Camera, Capture
+from ..errors import InputError, require
+from ..geometry.mesh import Mesh
+
+OBJECT_THRESHOLD = 0.5
+
+
+def read_label_image(path: str | Path) -> np.ndarray:
+    """An 8-bit label PNG as an integer (H, W) array (grey, palette or equal-channel RGB)."""
+    from PIL import Image
+
+    path = Path(path)
+    require(path.is_file(), path, "material mask not found", "check the path in capture.json")
+    try:
+        with Image.open(path) as im:
+            im.load()
+            arr = np.asarray(im)
+    except Exception as err:
+        raise InputError(path, f"cannot read material mask ({err.__class__.__name__})",
+                         "write an 8-bit PNG of integer labels") from err
+    if arr.ndim == 3:
+        equal = np.all(arr[..., :3] == arr[..., :1], axis=-1).all()
+        require(bool(equal), path, "material mask is a colour image",
+                "write one integer label per pixel as an 8-bit greyscale PNG (0 = unassigned)")
+        arr = arr[..., 0]
+    return arr.astype(np.int64)
+
+
+def combine_binary_masks(name: str, masks: list[np.ndarray], path=None) -> np.ndarray:
+    """Per-material binary masks of one frame -> a label image 1..n; overlaps are rejected."""
+    stack = np.stack([np.asarray(m) > OBJECT_THRESHOLD for m in masks])
+    overlap = int((stack.sum(0) > 1).sum())
+    require(overlap == 0, path, f"frame {name}: {overlap} pixels belong to more than one material mask",
+            "make the per-material masks disjoint")
+    return (stack * np.arange(1, len(masks) + 1)[:, None, None]).sum(0)
+
+
+def check_labels(name: str, labels: np.ndarray, size: tuple[int, int], object_mask: np.ndarray | None,
+                 path=None) -> None:
+    """One frame's label image against its frame size and object mask."""
+    w, h = size
+    require(labels.shape == (h, w), path,
+            f"frame {name}: material mask is {labels.shape[1]}x{labels.shape[0]} but the frame is {w}x{h}",
+            "resize the material mask to the frame")
+    if object_mask is not None:
+        missing = int(((object_mask >= OBJECT_THRESHOLD) & (labels <= 0)).sum())
+        require(missing == 0, path, f"frame {name}: {missing} object pixels have no material label",
+                "label every pixel inside the object mask (0 = unassigned is for the background)")
+
+
+def load_material_labels(capture: Capture) -> list[np.ndarray] | None:
+    """Validated per-frame label images from ``frame.material_mask`` (None when none given)."""
+    given = [f for f in capture.frames if f.material_mask is not None]
+    if not given:
+        return None
+    lacking = next((f for f in capture.frames if f.material_mask is None), None)
+    require(lacking is None, lacking.image if lacking else None,
+            f"frame {lacking.name if lacking else ''} has no material_mask but {len(given)} of "
+            f"{len(capture.frames)} frames do", "give a material mask for every frame or for none")
+    out = []
+    for f in capture.frames:
+        labels = read_label_image(f.material_mask)
+        obj = read_mask(f.mask) if f.mask is not None else None
+        check_labels(f.name, labels, (f.camera.width, f.camera.height), obj, f.material_mask)
+        out.append(labels)
+    return out
+
+
+def check_label_set(names: list[str], labels: list[np.ndarray], sizes: list[tuple[int, int]],
+                    object_masks: list[np.ndarray | None] | None = None) -> None:
+    """In-memory label images against the frames (count, size, coverage)."""
+    require(len(labels) == len(names), None, f"{len(labels)} material masks for {len(names)} frames "
+            f"(frame {names[min(len(labels), len(names) - 1)]} has none or too many)",
+            "give one material mask per frame")
+    for i, name in enumerate(names):
+        check_labels(name, labels[i], sizes[i], None if object_masks is None else object_masks[i])
+
+
+def cluster_labels(images: list[np.ndarray], object_masks: list[np.ndarray], k: int, seed: int = 0,
+                   iterations: int = 25, max_pixels: int = 200_000) -> list[np.ndarray]:
+    """Label images 1..k by k-means on object-pixel chromaticity and log brightness (0 = background),
+    clustered jointly over all frames so labels agree between views; labels sorted by brightness."""
+    feats, where = [], []
+    for img, m in zip(images, object_masks):
+        obj = m >= OBJECT_THRESHOLD
+        feats.append(_colour_features(np.asarray(img, np.float64)[obj]))
+        where.append(obj)
+    allf = np.concatenate(feats)
+    rng = np.random.default_rng(seed)
+    sub = allf[rng.choice(len(allf), min(len(allf), max_pixels), replace=False)]
+    centres = sub[[rng.integers(len(sub))]]
+    for _ in range(1, k):  # k-means++
+        d = ((sub[:, None] - centres[None]) ** 2).sum(-1).min(1)
+        centres = np.vstack([centres, sub[rng.choice(len(sub), p=d / d.sum()) if d.sum() > 0 else 0]])
+    for _ in range(iterations):
+        assign = ((sub[:, None] - centres[None]) ** 2).sum(-1).argmin(1)
+        centres = np.array([sub[assign == c].mean(0) if np.any(assign == c) else centres[c] for c in range(k)])
+    order = np.argsort(np.argsort(centres[:, 2]))  # label 1 = darkest
+    out = []
+    for f, obj in zip(feats, where):
+        lab = np.zeros(obj.shape, np.int64)
+        lab[obj] = order[((f[:, None] - centres[None]) ** 2).sum(-1).argmin(1)] + 1
+        out.append(lab)
+    return out
+
+
+def _colour_features(rgb: np.ndarray) -> np.ndarray:
+    s = np.maximum(rgb.sum(-1, keepdims=True), 1e-6)
+    return np.concatenate([rgb[:, :2] / s, 0.15 * np.log(s / 3 + 1e-3)], 1)
+
+
+@dataclass
+class FaceLabels:
+    labels: np.ndarray  # (F,) 0 .. n_materials - 1
+    material_ids: list[int]  # the mask label value of each material
+    disagreement: float  # share of votes that disagree with their face's majority
+    votes: int
+    unseen_faces: int  # faces no view saw, labelled from their neighbours
+
+    @property
+    def n_materials(self) -> int:
+        return len(self.material_ids)
+
+
+def visible_centroids(mesh: Mesh, camera: Camera) -> tuple[np.ndarray, np.ndarray]:
+    """Pixel coordinates (F, 2) of face centroids and whether each is seen by the camera
+    (in front, inside the image, first hit along the ray from the camera centre)."""
+    import mitsuba as mi
+
+    scene = _ray_scene(mesh)
+    centroids = mesh.vertices[mesh.faces].mean(1)
+    uv, depth = camera.project(centroids)
+    inside = (depth > 0) & (uv[:, 0] >= 0) & (uv[:, 1] >= 0) & (uv[:, 0] < camera.width) & (uv[:, 1] < camera.height)
+    o = camera.centre
+    d = centroids - o
+    dist = np.linalg.norm(d, axis=1)
+    d = d / np.maximum(dist, 1e-30)[:, None]
+    ray = mi.Ray3f(mi.Point3f(*[np.full(len(d), x, np.float32) for x in o]),
+                   mi.Vector3f(*[d[:, i].astype(np.float32) for i in range(3)]))
+    si = scene.ray_intersect(ray)
+    prim = np.array(si.prim_index)
+    t = np.array(si.t)
+    hit = np.array(si.is_valid())
+    first = hit & ((prim == np.arange(mesh.n_faces)) | (t >= dist * (1 - 1e-4)))
+    return uv, inside & first
+
+
+_scene_cache: dict = {}
+
+
+def _ray_scene(mesh: Mesh):
+    import mitsuba as mi
+
+    from ..render.scene import mitsuba_mesh
+
+    key = (mesh.vertices.tobytes().__hash__(), mesh.faces.tobytes().__hash__())
+    if key not in _scene_cache:
+        _scene_cache.clear()
+        _scene_cache[key] = mi.load_dict({"type": "scene",
+                                          "object": mitsuba_mesh(mesh, mi.load_dict({"type": "diffuse"}))})
+    return _scene_cache[key]
+
+
+def vote_face_labels(mesh: Mesh, cameras: list[Camera], label_images: list[np.ndarray]) -> FaceLabels:
+    """Per-face material labels by majority vote of the views that see each face's centroid."""
+    ids = sorted(set(np.unique(np.concatenate([np.unique(li) for li in label_images]))) - {0})
+    if not ids:
+        ids = [1]
+    lut = np.full(max(ids) + 1, -1, np.int64)
+    lut[ids] = np.arange(len(ids))
+    counts = np.zeros((mesh.n_faces, len(ids)), np.int64)
+    for cam, li in zip(cameras, label_images):
+        uv, seen = visible_centroids(mesh, cam)
+        f = np.flatnonzero(seen)
+        lab = li[uv[f, 1].astype(np.int64), uv[f, 0].astype(np.int64)]
+        keep = lab > 0
+        np.add.at(counts, (f[keep], lut[lab[keep]]), 1)
+    votes = int(counts.sum())
+    labels = counts.argmax(1)
+    seen = counts.sum(1) > 0
+    disagreement = 1.0 - counts.max(1).sum() / votes if votes else 0.0
+    labels = _fill_unseen(mesh, labels, seen)
+    return FaceLabels(labels, [int(i) for i in ids], float(disagreement), votes, int((~seen).sum()))
+
+
+def _fill_unseen(mesh: Mesh, labels: np.ndarray, seen: np.ndarray) -> np.ndarray:
+    """Give faces no view saw the most common label among their labelled edge neighbours."""
+    from scipy import sparse
+
+    from .meshcolors import unique_edges
+
+    _, face_edges = unique_edges(mesh.faces)
+    F = mesh.n_faces
+    incidence = sparse.csr_matrix((np.ones(3 * F), (np.repeat(np.arange(F), 3), face_edges.ravel())))
+    adjacency = (incidence @ incidence.T).tocsr()
+    labels, known = labels.copy(), seen.copy()
+    n = int(labels.max()) + 1
+    while not known.all():
+        onehot = sparse.csr_matrix((known.astype(float), (np.arange(F), labels)), shape=(F, n))
+        counts = (adjacency @ onehot).toarray()
+        grow = ~known & (counts.sum(1) > 0)
+        if not grow.any():
+            labels[~known] = 0
+            break
+        labels[grow] = counts[grow].argmax(1)
+        known |= grow
+    return labels

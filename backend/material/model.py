@@ -1,0 +1,310 @@
+"""The reconstructed material: per-face material labels plus three channels (diffuse albedo,
+specular reflectance, roughness), each either one constant per material or mesh colors.
+
+This is the swappable material model the reconstruction loop drives:
+
+    renderer = SceneRenderer(mesh, material.field, ...)   # SurfaceBSDF reads material.field
+    params = material.attach(renderer.params)             # for mi.render(..., params=params)
+    material.parameters() / load_parameters(...)          # latent Dr.Jit leaves by channel
+    material.on_subdivide(old_mesh, new_mesh)             # exact transfer (1 -> 4 midpoint split)
+    material.on_remesh(new_mesh)                          # labels carried over, values to neutral grey
+    material.display(mesh) -> Mesh                        # snapshot mesh (docs/protocol.md)
+"""
+
+from __future__ import annotations
+
+import io
+from dataclasses import dataclass
+from pathlib import Path
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+
+from .. import fsio
+from ..geometry.mesh import Mesh
+from .field import MaterialField, squash_np, unsquash_np
+from .meshcolors import MeshColorLayout, local_sub_triangles
+from .transfer import locate, project_onto_faces
+
+NEUTRAL = {"albedo": 0.5, "specular": 0.1, "roughness": 0.5}
+
+
+@dataclass
+class Channel:
+    """One quantity. ``latent`` is one persistent Dr.Jit array, overwritten in place (so the
+    scene parameters traversed through SurfaceBSDF keep pointing at the current values)."""
+
+    kind: str  # "constant" (one value per material label) or "colors" (mesh colors)
+    latent: mi.Float  # flat: (n_materials or n_samples) x width logits
+
+
+class MeshColorMaterial:
+    """Diffuse albedo + GGX specular and roughness on a mesh, as constants or mesh colors."""
+
+    CHANNELS = {"albedo": (3, 0.0, 1.0), "specular": (1, 0.0, 1.0), "roughness": (1, 0.0, 1.0)}
+
+    def __init__(self, mesh: Mesh, resolution: int = 4, labels: np.ndarray | None = None,
+                 n_materials: int | None = None, halve_resolution_on_subdivide: bool = True):
+        self.vertices = mesh.vertices.copy()
+        self.layout = MeshColorLayout(mesh.faces, mesh.n_vertices, resolution)
+        self.halve_resolution_on_subdivide = halve_resolution_on_subdivide
+        self.light_factor = 1.0
+        self.labels = np.zeros(mesh.n_faces, np.int64)
+        self.n_materials = 0
+        self.channels = {name: Channel("constant", mi.Float(0.0)) for name in self.CHANNELS}
+        self.field = MaterialField(self)
+        self._push_topology()
+        self.set_labels(self.labels if labels is None else labels, n_materials)
+        self.reset()
+
+    # -- state ---------------------------------------------------------------------------
+    @property
+    def resolution(self) -> int:
+        return self.layout.resolution
+
+    @property
+    def n_faces(self) -> int:
+        return self.layout.n_faces
+
+    def _push_topology(self) -> None:
+        self.dr_table = mi.UInt32(self.layout.table.astype(np.uint32).ravel())
+
+    def set_labels(self, labels: np.ndarray, n_materials: int | None = None) -> None:
+        """Per-face material labels 0 .. n-1. Constant channels keep the values of labels that
+        survive; new labels start neutral."""
+        labels = np.asarray(labels, np.int64).ravel()
+        if len(labels) != self.n_faces:
+            raise ValueError(f"{len(labels)} labels for {self.n_faces} faces")
+        n = int(n_materials or (labels.max() + 1 if len(labels) else 1))
+        if labels.min(initial=0) < 0 or labels.max(initial=0) >= n:
+            raise ValueError("material labels must lie in 0 .. n_materials - 1")
+        old_n = self.n_materials
+        self.labels, self.n_materials = labels, n
+        self.dr_labels = mi.UInt32(labels.astype(np.uint32))
+        for name, ch in self.channels.items():
+            if ch.kind == "constant" and old_n:
+                old = self.values(name)
+                new = np.tile(self._neutral(name), (n, 1))
+                new[:min(n, old_n)] = old[:min(n, old_n)]
+                self.set_values(name, new, "constant")
+
+    def _neutral(self, name: str) -> np.ndarray:
+        return np.full(self.CHANNELS[name][0], NEUTRAL[name])
+
+    def values(self, name: str) -> np.ndarray:
+        """Current values (n, width): per material for constants, per sample for mesh colors."""
+        width, lo, hi = self.CHANNELS[name]
+        return squash_np(np.array(self.channels[name].latent), lo, hi).reshape(-1, width)
+
+    def set_values(self, name: str, values: np.ndarray, kind: str | None = None) -> None:
+        width, lo, hi = self.CHANNELS[name]
+        kind = kind or self.channels[name].kind
+        n = self.n_materials if kind == "constant" else self.layout.n_samples
+        values = np.broadcast_to(np.asarray(values, np.float64).reshape(-1, width), (n, width))
+        ch = self.channels[name]
+        ch.kind = kind
+        mi.set_property(ch.latent, mi.Float(unsquash_np(values, lo, hi).astype(np.float32).ravel()))
+
+    def reset(self) -> None:
+        """Neutral grey constants for every material (the restart after a re-mesh)."""
+        for name in self.CHANNELS:
+            self.set_values(name, self._neutral(name), "constant")
+
+    def make_spatial(self, name: str) -> None:
+        """Turn a constant channel into mesh colors initialised from the per-material constants."""
+        if self.channels[name].kind == "colors":
+            return
+        const = self.values(name)
+        face, _ = self.layout.sample_sites()
+        self.set_values(name, const[self.labels[np.maximum(face, 0)]], "colors")
+
+    def make_constant(self, name: str) -> None:
+        """Turn mesh colors into per-material constants (area-free mean over each material's faces)."""
+        if self.channels[name].kind == "constant":
+            return
+        per_face = self.values(name)[self.layout.table].mean(1)
+        const = np.tile(self._neutral(name), (self.n_materials, 1))
+        for m in range(self.n_materials):
+            if np.any(self.labels == m):
+                const[m] = per_face[self.labels == m].mean(0)
+        self.set_values(name, const, "constant")
+
+    def set_resolution(self, resolution: int) -> None:
+        """Change r, resampling mesh-color channels (exact when the new grid refines the old)."""
+        old_layout, old_values = self.layout, self._colors()
+        self.layout = MeshColorLayout(old_layout.faces, old_layout.n_vertices, resolution)
+        self._push_topology()
+        face, bary = self.layout.sample_sites()
+        face = np.maximum(face, 0)
+        for name, vals in old_values.items():
+            self.set_values(name, old_layout.evaluate(vals, face, bary[:, 0], bary[:, 1]), "colors")
+
+    def _colors(self) -> dict[str, np.ndarray]:
+        return {n: self.values(n) for n, ch in self.channels.items() if ch.kind == "colors"}
+
+    # -- optimisation interface ------------------------------------------------------------
+    def parameters(self) -> dict[str, mi.Float]:
+        """The latent Dr.Jit leaves read by ``field``, by channel name."""
+        return {name: ch.latent for name, ch in self.channels.items()}
+
+    def load_parameters(self, params: dict) -> None:
+        """Take latents back (e.g. an optimizer's updated arrays) for the named channels."""
+        for name, latent in params.items():
+            ch = self.channels[name]
+            if dr.width(latent) != dr.width(ch.latent):
+                raise ValueError(f"{name}: {dr.width(latent)} latents, expected {dr.width(ch.latent)}")
+            mi.set_property(ch.latent, latent)
+
+    def attach(self, scene_params: mi.SceneParameters) -> mi.SceneParameters:
+        """Scene parameters that list the material's latents, so ``mi.render(..., params=...)``
+        routes their gradients: ``scene_params`` itself when SurfaceBSDF already exposes them
+        (``field.arrays()``), else a copy with them added."""
+        present = {id(v) for v, *_ in scene_params.properties.values()}
+        missing = {n: ch for n, ch in self.channels.items() if id(ch.latent) not in present}
+        if not missing:
+            return scene_params
+        params = scene_params.copy()
+        for name, ch in missing.items():
+            params.properties[f"material.{name}"] = (ch.latent, None, None, mi.ParamFlags.Differentiable)
+        return params
+
+    # -- evaluation (numpy) ------------------------------------------------------------------
+    def evaluate(self, face: np.ndarray, b1: np.ndarray, b2: np.ndarray) -> dict[str, np.ndarray]:
+        """Channel values (n, width) at surface points (face, b1, b2), as the field computes them."""
+        face = np.asarray(face, np.int64)
+        out = {}
+        for name, ch in self.channels.items():
+            vals = self.values(name)
+            if ch.kind == "constant":
+                out[name] = vals[self.labels[face]]
+            else:
+                out[name] = self.layout.evaluate(vals, face, b1, b2)
+        return out
+
+    # -- mesh changes ------------------------------------------------------------------------
+    def on_subdivide(self, old_mesh: Mesh, new_mesh: Mesh) -> None:
+        """Carry labels and values onto a subdivision of the old mesh (new faces lie inside old
+        ones). Exact for midpoint subdivision: r is kept, or halved when even (the child grid
+        then coincides with the parent grid), so the interpolated function is unchanged."""
+        r = self.resolution
+        if self.halve_resolution_on_subdivide and r >= 2 and r % 2 == 0:
+            r //= 2
+        parent = self._parents(old_mesh, new_mesh)
+        layout = MeshColorLayout(new_mesh.faces, new_mesh.n_vertices, r)
+        face, bary = layout.sample_sites()
+        face = np.maximum(face, 0)
+        tri = new_mesh.vertices[new_mesh.faces[face]]
+        b1, b2 = bary[:, 0:1], bary[:, 1:2]
+        points = (1 - b1 - b2) * tri[:, 0] + b1 * tri[:, 1] + b2 * tri[:, 2]
+        old_face = parent[face]
+        old_bary, _ = project_onto_faces(points, old_mesh.vertices, old_mesh.faces, old_face)
+        colors = {n: self.layout.evaluate(v, old_face, old_bary[:, 1], old_bary[:, 2])
+                  for n, v in self._colors().items()}
+        self._replace_mesh(new_mesh, layout, self.labels[parent])
+        for name, vals in colors.items():
+            self.set_values(name, vals, "colors")
+
+    def on_remesh(self, new_mesh: Mesh, reset: bool = True) -> None:
+        """After simplification or re-meshing: labels go to the nearest old face; values restart
+        from neutral grey (``reset``) or are resampled at the closest old surface points."""
+        centroids = new_mesh.vertices[new_mesh.faces].mean(1)
+        parent, _, _ = locate(centroids, self.vertices, self.layout.faces, exhaustive=False)
+        layout = MeshColorLayout(new_mesh.faces, new_mesh.n_vertices, self.resolution)
+        colors = {}
+        if not reset:
+            points = layout.sample_positions(new_mesh.vertices)
+            f, b, _ = locate(points, self.vertices, self.layout.faces, exhaustive=False)
+            colors = {n: self.layout.evaluate(v, f, b[:, 1], b[:, 2]) for n, v in self._colors().items()}
+        self._replace_mesh(new_mesh, layout, self.labels[parent])
+        if reset:
+            self.reset()
+        for name, vals in colors.items():
+            self.set_values(name, vals, "colors")
+
+    def _parents(self, old_mesh: Mesh, new_mesh: Mesh) -> np.ndarray:
+        if old_mesh.n_faces != self.n_faces:
+            raise ValueError(f"the material has {self.n_faces} faces, the old mesh {old_mesh.n_faces}")
+        centroids = new_mesh.vertices[new_mesh.faces].mean(1)
+        parent, _, _ = locate(centroids, old_mesh.vertices, old_mesh.faces)
+        return parent
+
+    def _replace_mesh(self, mesh: Mesh, layout: MeshColorLayout, labels: np.ndarray) -> None:
+        consts = {n: self.values(n) for n, ch in self.channels.items() if ch.kind == "constant"}
+        self.vertices = mesh.vertices.copy()
+        self.layout = layout
+        self._push_topology()
+        self.labels = np.asarray(labels, np.int64)
+        self.dr_labels = mi.UInt32(self.labels.astype(np.uint32))
+        for name, vals in consts.items():
+            self.set_values(name, vals, "constant")
+
+    # -- display ------------------------------------------------------------------------------
+    def display(self, mesh: Mesh) -> Mesh:
+        """The snapshot mesh: each face split r x r so vertices sit on the mesh-color samples,
+        with vertex_colors = albedo and attributes specular, roughness (docs/protocol.md).
+
+        Vertices are shared where the material is continuous and split where it is not
+        (material-label boundaries of constant channels; every face at r = 0)."""
+        if mesh.n_faces != self.n_faces:
+            raise ValueError(f"the material has {self.n_faces} faces, the mesh {mesh.n_faces}")
+        spatial = any(ch.kind == "colors" for ch in self.channels.values())
+        split = self.n_materials > 1 and any(ch.kind == "constant" for ch in self.channels.values())
+        r = self.resolution if spatial else 1
+        layout = self.layout if r == self.resolution else MeshColorLayout(self.layout.faces, self.layout.n_vertices, r)
+        F = self.n_faces
+        if r == 0:  # every face gets its own three vertices carrying the face's value
+            faces = np.arange(3 * F).reshape(F, 3)
+            site_face = np.repeat(np.arange(F), 3)
+            site = np.tile([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]], (F, 1))
+            value_site = np.full_like(site, 1.0 / 3.0)
+        else:
+            key = layout.table * self.n_materials + self.labels[:, None] if split else layout.table
+            _, first, inverse = np.unique(key.ravel(), return_index=True, return_inverse=True)
+            faces = inverse.reshape(key.shape)[:, local_sub_triangles(r)].reshape(-1, 3)
+            site_face = np.repeat(np.arange(F), key.shape[1])[first]
+            site = value_site = np.tile(layout.local_barycentrics(), (F, 1))[first]
+        tri = mesh.vertices[mesh.faces[site_face]]
+        b1, b2 = site[:, 0:1], site[:, 1:2]
+        vertices = (1 - b1 - b2) * tri[:, 0] + b1 * tri[:, 1] + b2 * tri[:, 2]
+        vals = self.evaluate(site_face, value_site[:, 0], value_site[:, 1])
+        return Mesh(vertices, faces, vals["albedo"].astype(np.float32),
+                    {"specular": vals["specular"][:, 0].astype(np.float32),
+                     "roughness": vals["roughness"][:, 0].astype(np.float32)})
+
+    # -- persistence ------------------------------------------------------------------------------
+    def save(self, path: str | Path) -> None:
+        """Write the material state (npz, atomic) for --resume."""
+        arrays = {"faces": self.layout.faces, "vertices": self.vertices, "labels": self.labels,
+                  "resolution": np.array(self.resolution), "n_materials": np.array(self.n_materials),
+                  "light_factor": np.array(self.light_factor)}
+        for name, ch in self.channels.items():
+            arrays[f"{ch.kind}:{name}"] = self.values(name)
+        buf = io.BytesIO()
+        np.savez_compressed(buf, **arrays)
+        fsio.write_bytes(path, buf.getvalue())
+
+    @classmethod
+    def load(cls, path: str | Path) -> "MeshColorMaterial":
+        data = np.load(path)
+        mesh = Mesh(data["vertices"], data["faces"])
+        material = cls(mesh, int(data["resolution"]), data["labels"], int(data["n_materials"]))
+        material.light_factor = float(data["light_factor"])
+        for key in data.files:
+            if ":" in key:
+                kind, name = key.split(":")
+                material.set_values(name, data[key], kind)
+        return material
+
+    def summary(self) -> dict:
+        """Per-material constants (or means of mesh colors) for reports."""
+        out = {"resolution": self.resolution, "materials": self.n_materials, "light_factor": self.light_factor,
+               "channels": {n: ch.kind for n, ch in self.channels.items()}}
+        for name, ch in self.channels.items():
+            vals = self.values(name)
+            if ch.kind == "colors":
+                per_face = vals[self.layout.table].mean(1)
+                vals = np.array([per_face[self.labels == m].mean(0) if np.any(self.labels == m)
+                                 else np.full(vals.shape[1], np.nan) for m in range(self.n_materials)])
+            out[name] = np.round(vals, 4).tolist()
+        return out

@@ -1,0 +1,303 @@
+"""Material optimisation stages, called by the reconstruction loop between geometry steps.
+
+Each stage takes a SceneRenderer (built with ``material.field``), the target images (linear
+RGB, one per renderer view) and per-pixel weights (object masks, 0-1), and updates the
+material in place by Adam on the latent parameters through path-traced renders (use an AD
+integrator such as ``prb``; its max_depth decides how much global illumination is modelled).
+
+    schedule = MaterialSchedule()
+    while schedule.stage != "done":
+        ... geometry steps ...
+        run_cycle(schedule, renderer, images, weights, material)   # one material cycle
+        # after a re-mesh: material.on_remesh(mesh); schedule.on_remesh()
+
+Stages: ``constant`` (one albedo, specular and roughness per material; the first cycles),
+``diffuse`` (mesh-color albedo from the constants, specular highlights dropped from the
+loss; the first such cycle also fits the environment brightness factor), ``specular``
+(mesh-color specular with a variance penalty, roughness per material, albedo refined)."""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+
+from .field import squash
+from .model import MeshColorMaterial
+
+ENV_SCALE = "environment.scale"
+
+
+@dataclass
+class FitSettings:
+    iterations: int = 40
+    lr: float = 0.05  # Adam step on latents (logits)
+    light_lr: float = 0.02  # Adam step on the log brightness factor
+    spp: int = 0  # 0: the renderer's
+    views_per_step: int = 1
+    variance_weight: float = 0.0  # lambda in lambda * Var(specular) (per material)
+    highlight_threshold: float = 0.15  # drop pixels whose predicted highlight exceeds this share
+    seed: int = 0
+
+
+@dataclass
+class FitResult:
+    stage: str
+    losses: list[float] = field(default_factory=list)
+    light_factor: float = 1.0
+    highlight_share: float = 0.0  # share of object pixels dropped as highlights
+    seconds: float = 0.0
+
+    @property
+    def loss(self) -> float:
+        tail = self.losses[-max(1, len(self.losses) // 4):]
+        return float(np.mean(tail)) if tail else math.nan
+
+
+def _tensor(a: np.ndarray) -> mi.TensorXf:
+    return mi.TensorXf(np.ascontiguousarray(a, dtype=np.float32))
+
+
+def _weights3(w: np.ndarray) -> np.ndarray:
+    w = np.asarray(w, np.float32)
+    return np.repeat(w[..., None], 3, -1) if w.ndim == 2 else w
+
+
+def variance_penalty(material: MeshColorMaterial, name: str):
+    """Mean over samples of the squared deviation from their material's mean value (Dr.Jit)."""
+    ch = material.channels[name]
+    width, lo, hi = material.CHANNELS[name]
+    if ch.kind != "colors":
+        return mi.Float(0.0)
+    v = squash(ch.latent, lo, hi)
+    face, _ = material.layout.sample_sites()
+    group = np.repeat(material.labels[np.maximum(face, 0)] * width, width) + np.tile(np.arange(width), len(face))
+    counts = np.maximum(np.bincount(group, minlength=material.n_materials * width), 1)
+    group_dr = mi.UInt32(group.astype(np.uint32))
+    sums = dr.zeros(mi.Float, material.n_materials * width)
+    dr.scatter_reduce(dr.ReduceOp.Add, sums, v, group_dr)
+    mean = dr.gather(mi.Float, sums / mi.Float(counts.astype(np.float32)), group_dr)
+    return dr.mean(dr.square(v - mean))
+
+
+class LightFactor:
+    """The environment map's brightness factor k (scene scale = strength * k), as log k."""
+
+    def __init__(self, renderer, material: MeshColorMaterial):
+        self.renderer = renderer
+        self.material = material
+        self.present = ENV_SCALE in renderer.params
+        self.base = float(renderer.params[ENV_SCALE][0]) / material.light_factor if self.present else 1.0
+
+    def set(self, log_k) -> None:
+        self.renderer.params[ENV_SCALE] = self.base * dr.exp(log_k)
+        self.renderer.params.update()
+
+    def finish(self, log_k) -> float:
+        k = float(np.exp(dr.detach(log_k)[0]))
+        self.renderer.params[ENV_SCALE] = mi.Float(self.base * k)
+        self.renderer.params.update()
+        self.material.light_factor = k
+        return k
+
+
+def apply_light_factor(renderer, material: MeshColorMaterial, strength: float) -> None:
+    """Set a (new) renderer's environment scale to strength x the material's fitted factor."""
+    if ENV_SCALE in renderer.params:
+        renderer.params[ENV_SCALE] = mi.Float(strength * material.light_factor)
+        renderer.params.update()
+
+
+def fit(renderer, images: list[np.ndarray], weights: list[np.ndarray], material: MeshColorMaterial,
+        names: list[str], settings: FitSettings, light: bool = False, stage: str = "fit",
+        emit=None) -> FitResult:
+    """Adam on the named channels' latents (and log brightness when ``light``), minimising the
+    weighted mean squared error of renders against ``images`` plus the variance penalty."""
+    start = time.time()
+    opt = mi.ad.Adam(lr=settings.lr, mask_updates=True)
+    params = material.parameters()
+    for n in names:
+        opt[n] = params[n]
+    factor = LightFactor(renderer, material) if light else None
+    if factor is not None and factor.present:
+        opt["light"] = mi.Float(math.log(material.light_factor))
+        opt.set_learning_rate({"light": settings.light_lr})
+    else:
+        factor = None
+    targets = [_tensor(img[..., :3]) for img in images]
+    w = [_tensor(_weights3(x)) for x in weights]
+    norms = [max(float(np.sum(x)), 1e-6) for x in weights]
+    rng = np.random.default_rng(settings.seed)
+    order: list[int] = []
+    result = FitResult(stage)
+    n_views = len(images)
+    for it in range(settings.iterations):
+        material.load_parameters({n: opt[n] for n in names})
+        if factor is not None:
+            factor.set(opt["light"])
+        loss = mi.Float(0.0)
+        for _ in range(min(settings.views_per_step, n_views)):
+            if not order:
+                order = list(rng.permutation(n_views))
+            v = int(order.pop())
+            img = renderer.render(v, seed=settings.seed * 100003 + it * 17 + v,
+                                  spp=settings.spp or None, params=material.attach(renderer.params))
+            loss += dr.sum(w[v] * dr.square(img - targets[v])).array / norms[v]
+        loss /= min(settings.views_per_step, n_views)
+        if settings.variance_weight and "specular" in names:
+            loss += settings.variance_weight * variance_penalty(material, "specular")
+        dr.backward(loss)
+        opt.step()
+        result.losses.append(float(loss[0]))
+        if emit:
+            emit("progress", stage=f"material:{stage}", iteration=it + 1, iterations=settings.iterations,
+                 loss=result.losses[-1])
+    material.load_parameters({n: dr.detach(opt[n]) for n in names})
+    if factor is not None:
+        result.light_factor = factor.finish(opt["light"])
+    else:
+        result.light_factor = material.light_factor
+    result.seconds = time.time() - start
+    return result
+
+
+def evaluate_loss(renderer, images, weights, material: MeshColorMaterial, spp: int = 0, seed: int = 7) -> float:
+    """Weighted mean squared error over all views (no gradients, fixed seeds)."""
+    total = 0.0
+    for v, (img, w) in enumerate(zip(images, weights)):
+        out = renderer.render_numpy(v, seed=seed + v, spp=spp or None)[..., :3]
+        w3 = _weights3(w)
+        total += float(np.sum(w3 * (out - img[..., :3]) ** 2) / max(np.sum(w), 1e-6))
+    return total / len(images)
+
+
+class SpecularOnlyField:
+    """A material field with the albedo removed: renders only the specular lobe."""
+
+    def __init__(self, field):
+        self.inner = field
+
+    def arrays(self) -> dict:
+        return self.inner.arrays()
+
+    def lookup(self, si, active):
+        _, spec, rough = self.inner.lookup(si, active)
+        return mi.Color3f(0.0), spec, rough
+
+
+def highlight_masks(renderer, images, weights, material: MeshColorMaterial, threshold: float = 0.15,
+                    spp: int = 0) -> list[np.ndarray]:
+    """Pixels where the predicted specular highlight is a large share of the observed radiance.
+
+    The geometry is rendered as a mirror-like surface under the capture's lights (specular
+    lobe only, with the material's current specular and roughness, so point lights give
+    highlights too); pixels where it exceeds ``threshold`` x the target are masked."""
+    old = renderer.field
+    renderer.set_field(SpecularOnlyField(material.field))
+    try:
+        out = []
+        for v, (img, w) in enumerate(zip(images, weights)):
+            h = renderer.render_numpy(v, seed=1000 + v, spp=spp or None)[..., :3]
+            lum_h, lum_t = h.mean(-1), np.asarray(img)[..., :3].mean(-1)
+            out.append((lum_h > threshold * np.maximum(lum_t, 1e-4)) & (np.asarray(w) > 0))
+        return out
+    finally:
+        renderer.set_field(old)
+
+
+def fit_constants(renderer, images, weights, material: MeshColorMaterial, settings: FitSettings | None = None,
+                  emit=None) -> FitResult:
+    """Stage 1: one albedo, specular and roughness per material."""
+    for name in material.CHANNELS:
+        material.make_constant(name)
+    return fit(renderer, images, weights, material, list(material.CHANNELS), settings or FitSettings(),
+               stage="constant", emit=emit)
+
+
+def fit_diffuse(renderer, images, weights, material: MeshColorMaterial, settings: FitSettings | None = None,
+                light: bool = False, emit=None) -> FitResult:
+    """Stage 2: mesh-color albedo (initialised from the constants), highlights masked out;
+    ``light`` also fits the environment brightness factor (the first texture round)."""
+    settings = settings or FitSettings()
+    material.make_spatial("albedo")
+    masks = highlight_masks(renderer, images, weights, material, settings.highlight_threshold, settings.spp)
+    kept = [np.asarray(w, np.float32) * (~m) for w, m in zip(weights, masks)]
+    obj = sum(float((np.asarray(w) > 0).sum()) for w in weights)
+    result = fit(renderer, images, kept, material, ["albedo"], settings, light=light, stage="diffuse", emit=emit)
+    result.highlight_share = sum(float(m.sum()) for m in masks) / max(obj, 1.0)
+    return result
+
+
+def fit_specular(renderer, images, weights, material: MeshColorMaterial, settings: FitSettings | None = None,
+                 spatial_roughness: bool = False, emit=None) -> FitResult:
+    """Stage 3: mesh-color specular with the variance penalty; roughness per material (or mesh
+    colors with ``spatial_roughness``); albedo refined, highlights included."""
+    settings = settings or FitSettings(variance_weight=0.1)
+    material.make_spatial("albedo")
+    material.make_spatial("specular")
+    if spatial_roughness:
+        material.make_spatial("roughness")
+    return fit(renderer, images, weights, material, ["albedo", "specular", "roughness"], settings,
+               stage="specular", emit=emit)
+
+
+@dataclass
+class MaterialSchedule:
+    """Which material stage the next cycle runs; advances when the loss stops improving."""
+
+    constant_cycles: int = 5
+    restart_cycles: int = 1  # constant cycles after a re-mesh reset
+    patience: int = 1  # cycles without improvement that end a spatially varying stage
+    min_improvement: float = 0.01  # relative loss decrease that counts as improving
+    stage: str = "constant"
+    cycle: int = 0  # cycles run in the current stage
+    light_fitted: bool = False
+    best: float = math.inf
+    stale: int = 0
+    history: list = field(default_factory=list)
+
+    STAGES = ("constant", "diffuse", "specular", "done")
+
+    def report(self, loss: float) -> str:
+        """Record the loss of the cycle just run; returns the stage of the next cycle."""
+        self.history.append((self.stage, float(loss)))
+        self.cycle += 1
+        if loss < self.best * (1 - self.min_improvement):
+            self.best, self.stale = loss, 0
+        else:
+            self.stale += 1
+        limit = self.constant_cycles if self.stage == "constant" else None
+        if (limit is not None and self.cycle >= limit) or (limit is None and self.stale >= self.patience):
+            self.stage = self.STAGES[self.STAGES.index(self.stage) + 1]
+            self.cycle, self.stale = 0, 0
+            self.best = loss
+        return self.stage
+
+    def on_remesh(self) -> None:
+        """The material restarted from grey: a short constant stage, then textures again."""
+        self.stage, self.cycle, self.stale, self.best = "constant", 0, 0, math.inf
+        self.constant_cycles = self.restart_cycles
+
+
+def run_cycle(schedule: MaterialSchedule, renderer, images, weights, material: MeshColorMaterial,
+              settings: FitSettings | None = None, emit=None, loss_spp: int = 0) -> FitResult:
+    """Run the schedule's current stage once, then report the full-view loss to the schedule."""
+    settings = settings or FitSettings()
+    stage = schedule.stage
+    if stage == "constant":
+        result = fit_constants(renderer, images, weights, material, settings, emit)
+    elif stage == "diffuse":
+        result = fit_diffuse(renderer, images, weights, material, settings, light=not schedule.light_fitted,
+                             emit=emit)
+        schedule.light_fitted = True
+    elif stage == "specular":
+        spec = settings if settings.variance_weight else FitSettings(**{**settings.__dict__, "variance_weight": 0.1})
+        result = fit_specular(renderer, images, weights, material, spec, emit=emit)
+    else:
+        return FitResult("done")
+    schedule.report(evaluate_loss(renderer, images, weights, material, loss_spp))
+    return result
