@@ -1,0 +1,118 @@
+"""glTF export of the reconstruction with baked textures.
+
+A temporary copy of the object gets a triangle-atlas UV map (two triangles per square
+cell, kept apart by a texel gap); Cycles bakes its albedo (the colour attribute through
+the material) and roughness into images, and Blender's glTF exporter writes the copy with
+a material that reads those textures. The user's scene is left as it was."""
+
+import math
+from pathlib import Path
+
+import bpy
+import numpy as np
+
+from .preview import cycles_device
+
+
+def atlas_uvs(n_faces: int, size: int) -> np.ndarray:
+    """(n_faces * 3, 2) per-corner UVs: face 2k and 2k+1 share cell k, one on each side of
+    the cell's diagonal, each inset so that bilinear lookups stay inside its own texels."""
+    cells = max(1, math.ceil(math.sqrt(math.ceil(n_faces / 2))))
+    texels = size / cells
+    a = 0.75 / texels  # gap to the cell border
+    b = a + 1.5 / (texels * math.sqrt(2))  # plus half of the gap across the diagonal
+    lower = np.array([[a, a], [1 - b, a], [a, 1 - b]])
+    upper = np.array([[1 - a, 1 - a], [b, 1 - a], [1 - a, b]])
+    i = np.arange(n_faces)
+    corner = np.where((i % 2 == 0)[:, None, None], lower, upper)  # (F, 3, 2)
+    origin = np.stack([(i // 2) % cells, (i // 2) // cells], -1)[:, None, :]
+    return ((origin + corner) / cells).reshape(-1, 2).astype(np.float32)
+
+
+def texture_size(n_faces: int) -> int:
+    """Power of two giving each atlas cell at least 8 texels, between 256 and 4096."""
+    cells = math.ceil(math.sqrt(math.ceil(max(n_faces, 1) / 2)))
+    return int(min(4096, max(256, 2 ** math.ceil(math.log2(8 * cells)))))
+
+
+def _bake(context, scene, obj, image, kind: str) -> None:
+    """Bake ``kind`` (DIFFUSE colour or ROUGHNESS) of ``obj``'s material into ``image``."""
+    nodes = obj.active_material.node_tree.nodes
+    target = nodes.get(".sft_bake") or nodes.new("ShaderNodeTexImage")
+    target.name = ".sft_bake"
+    target.image = image
+    nodes.active = target
+    override = dict(scene=scene, view_layer=scene.view_layers[0], active_object=obj, object=obj,
+                    selected_objects=[obj], selected_editable_objects=[obj])
+    with context.temp_override(**override):
+        bpy.ops.object.bake(type=kind, pass_filter={"COLOR"} if kind == "DIFFUSE" else set(),
+                            margin=2, margin_type="EXTEND", use_clear=True, target="IMAGE_TEXTURES")
+
+
+def _textured_material(color: bpy.types.Image, roughness: bpy.types.Image) -> bpy.types.Material:
+    mat = bpy.data.materials.new(".sft_export")
+    mat.use_nodes = True
+    nodes, links = mat.node_tree.nodes, mat.node_tree.links
+    bsdf = next(n for n in nodes if n.type == "BSDF_PRINCIPLED")
+    tex = nodes.new("ShaderNodeTexImage")
+    tex.image = color
+    links.new(tex.outputs["Color"], bsdf.inputs["Base Color"])
+    rough = nodes.new("ShaderNodeTexImage")
+    rough.image = roughness
+    split = nodes.new("ShaderNodeSeparateColor")
+    links.new(rough.outputs["Color"], split.inputs["Color"])
+    links.new(split.outputs["Green"], bsdf.inputs["Roughness"])  # glTF reads roughness from G
+    return mat
+
+
+def export_gltf(context, obj: bpy.types.Object, path: Path, bake: bool = True, size: int = 0,
+                samples: int = 1, device: str = "AUTO") -> dict:
+    """Write ``obj`` as binary glTF; returns what was written."""
+    scene = bpy.data.scenes.new(".sft_export")
+    mesh = obj.data.copy()
+    copy = bpy.data.objects.new(obj.name, mesh)
+    copy.matrix_world = obj.matrix_world
+    scene.collection.objects.link(copy)
+    made = {"images": [], "materials": []}
+    info = {"path": str(path), "faces": len(mesh.polygons), "texture_size": 0}
+    try:
+        if bake:
+            size = size or texture_size(len(mesh.polygons))
+            uv = mesh.uv_layers.new(name="UVMap")
+            uv.data.foreach_set("uv", atlas_uvs(len(mesh.polygons), size).ravel())
+            baking = mesh.materials[0].copy() if mesh.materials else None
+            if baking is None:
+                from .scene_mesh import reconstruction_material
+                baking = reconstruction_material().copy()
+            made["materials"].append(baking)
+            mesh.materials.clear()
+            mesh.materials.append(baking)
+            scene.render.engine = "CYCLES"
+            scene.cycles.samples = samples
+            scene.cycles.device = cycles_device(context, device)
+            color = bpy.data.images.new(f"{obj.name}_basecolor", size, size, alpha=False)
+            rough = bpy.data.images.new(f"{obj.name}_roughness", size, size, alpha=False)
+            rough.colorspace_settings.name = "Non-Color"
+            made["images"] += [color, rough]
+            _bake(context, scene, copy, color, "DIFFUSE")
+            _bake(context, scene, copy, rough, "ROUGHNESS")
+            textured = _textured_material(color, rough)
+            made["materials"].append(textured)
+            mesh.materials.clear()
+            mesh.materials.append(textured)
+            info["texture_size"] = size
+        path.parent.mkdir(parents=True, exist_ok=True)
+        override = dict(scene=scene, view_layer=scene.view_layers[0], active_object=copy, object=copy,
+                        selected_objects=[copy], selected_editable_objects=[copy])
+        with context.temp_override(**override):
+            bpy.ops.export_scene.gltf(filepath=str(path), export_format="GLB", use_selection=True,
+                                      export_apply=True)
+        return info
+    finally:
+        bpy.data.scenes.remove(scene)
+        bpy.data.objects.remove(copy)
+        bpy.data.meshes.remove(mesh)
+        for mat in made["materials"]:
+            bpy.data.materials.remove(mat)
+        for image in made["images"]:
+            bpy.data.images.remove(image)

@@ -1,0 +1,127 @@
+"""Backend runs inside Blender: one process, its state, and what reaches the scene.
+
+:meth:`Job.step` is the single update function: a modal timer calls it in the UI and the
+headless path calls it in a loop (timers never fire in background mode). A reconstruction
+job streams the newest snapshot mesh into the "Reconstruction" object."""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+import bpy
+
+from . import scene_mesh
+from .errors import AddonInputError
+from .ply import read_display_mesh
+from .process import BackendProcess
+from .progress import RunState
+
+ACTIVE: dict[str, "Job"] = {}  # kind ("reconstruct", "solve") -> the job the panel shows
+
+
+class Job:
+    """A backend command running in the background, with its :class:`RunState`."""
+
+    def __init__(self, python: str, args: list[str], run_dir: Path | None = None, kind: str = "job"):
+        self.kind = kind
+        self.state = RunState()
+        self.run_dir = run_dir
+        self.process = BackendProcess(python, args, run_dir)
+        ACTIVE[kind] = self
+
+    @property
+    def running(self) -> bool:
+        return not self.process.finished
+
+    def stop(self) -> None:
+        self.process.request_stop()
+        self.state.stopping()
+
+    def step(self, context) -> bool:
+        """Read new events and update the scene; False once the process has finished."""
+        events = self.process.poll()
+        for event in events:
+            self.state.update(event)
+        self.on_events(context, events)
+        if self.process.finished:
+            self.state.finish(self.process.returncode, self.process.log_tail(6).replace("\n", " | "))
+            self.on_finish(context)
+            return False
+        return True
+
+    def on_events(self, context, events: list[dict]) -> None:
+        pass
+
+    def on_finish(self, context) -> None:
+        pass
+
+    def run_blocking(self, context, interval: float = 0.1) -> None:
+        """The headless path: drive :meth:`step` until the process ends."""
+        while self.step(context):
+            time.sleep(interval)
+
+
+class ReconstructJob(Job):
+    """``python -m backend reconstruct``; the newest snapshot streams into the scene."""
+
+    def __init__(self, python: str, args: list[str], run_dir: Path, object_name: str):
+        self.object_name = object_name
+        self.applied: str | None = None  # the snapshot mesh now in the scene
+        self.apply_seconds: list[float] = []  # main-thread cost of each update
+        super().__init__(python, args, run_dir, kind="reconstruct")
+
+    def on_events(self, context, events):
+        if any(e.get("event") == "snapshot" for e in events):
+            self.apply_latest(context)
+
+    def on_finish(self, context):
+        self.apply_latest(context)
+
+    def apply_latest(self, context) -> bool:
+        """Show the newest snapshot if it is not shown yet; True when the scene changed."""
+        path = latest_snapshot(self.run_dir)
+        if path is None or str(path) == self.applied:
+            return False
+        start = time.perf_counter()
+        if not show_snapshot(context, path, self.object_name):
+            return False  # superseded and removed meanwhile: the next step reads the newer one
+        self.applied = str(path)
+        self.apply_seconds.append(time.perf_counter() - start)
+        return True
+
+
+def latest_snapshot(run_dir: Path) -> Path | None:
+    """The mesh ``snapshot.json`` names (it is replaced only after that mesh is complete)."""
+    try:
+        doc = json.loads((Path(run_dir) / "snapshot.json").read_text())
+    except (OSError, ValueError):
+        return None
+    return Path(run_dir) / doc["mesh"] if isinstance(doc, dict) and doc.get("mesh") else None
+
+
+def show_snapshot(context, path: Path, object_name: str = scene_mesh.OBJECT_NAME) -> bool:
+    """Write a display mesh into the object; False when the file cannot be read."""
+    try:
+        mesh = read_display_mesh(path)
+    except AddonInputError:
+        return False
+    scene_mesh.apply_display_mesh(scene_mesh.reconstruction_object(context, object_name), mesh)
+    return True
+
+
+def tag_redraw(context) -> None:
+    """Redraw the 3D views so the sidebar shows the new state."""
+    for window in getattr(context.window_manager, "windows", []):
+        for area in window.screen.areas:
+            if area.type == "VIEW_3D":
+                area.tag_redraw()
+
+
+def stop_all() -> None:
+    """Blender is quitting or the add-on is disabled: end every backend process."""
+    for job in ACTIVE.values():
+        if job.running:
+            job.process.kill()
+    ACTIVE.clear()

@@ -1,0 +1,22 @@
+"""Operators: each validates its input before touching the scene and reports one line on
+bad input (``report({'ERROR'}, ...)``), leaving the scene unchanged."""
+
+import bpy
+
+from . import backend, cameras, capture, export, preview, reconstruct
+
+CLASSES = (*backend.CLASSES, *capture.CLASSES, *cameras.CLASSES, *reconstruct.CLASSES,
+           *preview.CLASSES, *export.CLASSES)
+
+
+def register():
+    for cls in CLASSES:
+        bpy.utils.register_class(cls)
+
+
+def unregister():
+    from .. import jobs
+
+    jobs.stop_all()
+    for cls in reversed(CLASSES):
+        bpy.utils.unregister_class(cls)

@@ -1,0 +1,186 @@
+"""Capture operators: video to frames, masks, environment map."""
+
+import shutil
+import tempfile
+from pathlib import Path
+
+import bpy
+import numpy as np
+from bpy.props import BoolProperty, FloatProperty, IntProperty, StringProperty
+from bpy_extras.io_utils import ImportHelper
+
+from .. import frames as fr
+from .. import world
+from ..errors import AddonInputError, require
+from ..files import png_bytes, replace_dir, write_atomic
+from ..images import luminance, read_rgba
+from ..video import VIDEO_SUFFIXES, render_frames, video_info
+from .common import abspath, capture_dir, fail
+
+
+class SFT_OT_import_video(bpy.types.Operator, ImportHelper):
+    """Turn a phone video into frames (every Nth frame or a target count, blurred frames
+    skipped); the frames go to the capture folder's images/"""
+
+    bl_idname = "sft.import_video"
+    bl_label = "Import Video"
+    bl_options = {"REGISTER", "UNDO"}
+
+    filter_glob: StringProperty(default=";".join(f"*{s}" for s in sorted(VIDEO_SUFFIXES)), options={"HIDDEN"})
+    capture_dir: StringProperty(
+        name="Capture Folder", subtype="DIR_PATH", default="",
+        description="Where the frames go; empty: the scene's capture folder, else <video>_capture")
+    every_nth: IntProperty(name="Every Nth Frame", default=10, min=1,
+                           description="Keep every Nth frame (when Target Count is 0)")
+    target_count: IntProperty(name="Target Count", default=0, min=0,
+                              description="Frames to keep, spread evenly over the video (0: use Every Nth)")
+    blur_threshold: FloatProperty(
+        name="Blur Threshold", default=0.3, min=0.0, max=1.0,
+        description="Skip frames less sharp than this fraction of the median sharpness (0: keep all)")
+    overwrite: BoolProperty(name="Overwrite", default=False,
+                            description="Replace frames (and their masks) already in the capture folder")
+
+    def execute(self, context):
+        try:
+            video = abspath(self.filepath)
+            total, width, height, _ = video_info(video)
+            if self.capture_dir or context.scene.sft.capture_dir:
+                capture = capture_dir(context, self.capture_dir, must_exist=False)
+            else:
+                capture = video.with_name(f"{video.stem}_capture")
+            images = capture / fr.IMAGES
+            require(self.overwrite or not (images.is_dir() and any(images.iterdir())), images,
+                    "the capture folder already holds frames",
+                    "enable Overwrite or choose another capture folder")
+            kept, blurred = self._extract(video, total, width, height, capture)
+        except AddonInputError as err:
+            return fail(self, err)
+        context.scene.sft.capture_dir = str(capture)
+        self.report({"INFO"}, f"{kept} frames in {capture / fr.IMAGES} ({blurred} blurred skipped)")
+        return {"FINISHED"}
+
+    def _extract(self, video: Path, total: int, width: int, height: int, capture: Path):
+        capture.mkdir(parents=True, exist_ok=True)
+        tmp = Path(tempfile.mkdtemp(prefix=".import-", dir=capture))
+        try:
+            picks = fr.pick_frames(total, self.every_nth, self.target_count)
+            files = render_frames(video, picks, tmp / "video")
+            scores = [fr.sharpness(luminance(read_rgba(f)[0])) for f in files]
+            keep = fr.sharp_enough(scores, self.blur_threshold)
+            out = tmp / fr.IMAGES
+            out.mkdir()
+            entries = []
+            for source, file, score, ok in zip(picks, files, scores, keep):
+                if ok:
+                    name = fr.frame_name(len(entries))
+                    file.rename(out / f"{name}.png")
+                    entries.append({"name": name, "image": f"{fr.IMAGES}/{name}.png",
+                                    "source_frame": source, "sharpness": score})
+            replace_dir(out, capture / fr.IMAGES)
+            for stale in (fr.MASKS, fr.MATERIALS):
+                shutil.rmtree(capture / stale, ignore_errors=True)
+            fr.write_manifest(capture, {
+                "video": str(video), "video_frames": total, "width": width, "height": height,
+                "frames": entries,
+                "skipped_blurred": [s for s, ok in zip(picks, keep) if not ok]})
+            return len(entries), len(picks) - len(entries)
+        finally:
+            shutil.rmtree(tmp, ignore_errors=True)
+
+
+class SFT_OT_import_masks(bpy.types.Operator, ImportHelper):
+    """Import object masks (an image sequence or a video) matched to the imported frames;
+    with a material label, the masks mark that material in materials/ instead"""
+
+    bl_idname = "sft.import_masks"
+    bl_label = "Import Masks"
+    bl_options = {"REGISTER", "UNDO"}
+
+    filter_glob: StringProperty(
+        default=";".join(f"*{s}" for s in sorted(VIDEO_SUFFIXES | fr.IMAGE_SUFFIXES)), options={"HIDDEN"})
+    material: IntProperty(
+        name="Material Label", default=0, min=0, max=255,
+        description="0: object masks (masks/). 1-255: these masks mark material N (materials/)")
+
+    def execute(self, context):
+        try:
+            capture = capture_dir(context)
+            manifest = fr.read_manifest(capture)
+            written = self._import(capture, manifest, abspath(self.filepath))
+        except AddonInputError as err:
+            return fail(self, err)
+        target = fr.MATERIALS if self.material else fr.MASKS
+        self.report({"INFO"}, f"{written} masks in {capture / target}")
+        return {"FINISHED"}
+
+    def _import(self, capture: Path, manifest: dict, source: Path) -> int:
+        frames = manifest["frames"]
+        sources = [int(f["source_frame"]) for f in frames]
+        size = (int(manifest["height"]), int(manifest["width"]))
+        tmp = Path(tempfile.mkdtemp(prefix=".masks-", dir=capture))
+        try:
+            if source.suffix.lower() in VIDEO_SUFFIXES:
+                count = video_info(source)[0]
+                picks = fr.match_masks(count, sources, int(manifest.get("video_frames", 0)), source)
+                files = render_frames(source, picks, tmp / "video")
+            else:
+                sequence = fr.image_sequence(source)
+                picks = fr.match_masks(len(sequence), sources, int(manifest.get("video_frames", 0)),
+                                       sequence[0].parent)
+                files = [sequence[i] for i in picks]
+            target = fr.MATERIALS if self.material else fr.MASKS
+            out = tmp / target
+            out.mkdir()
+            covered = 0
+            for frame, file in zip(frames, files):
+                rgba = read_rgba(file)[0]
+                require(rgba.shape[:2] == size, file,
+                        f"mask is {rgba.shape[1]}x{rgba.shape[0]}, the frames are {size[1]}x{size[0]}",
+                        "export the masks at the frames' size")
+                mask = fr.mask_from_rgba(rgba) > 0
+                covered += int(mask.any())
+                if self.material:
+                    previous = capture / fr.MATERIALS / f"{frame['name']}.png"
+                    labels = (np.rint(read_rgba(previous)[0][..., 0] * 255).astype(np.uint8)
+                              if previous.is_file() else np.zeros(size, np.uint8))
+                    labels[mask] = self.material
+                    write_atomic(out / f"{frame['name']}.png", png_bytes(labels))
+                else:
+                    write_atomic(out / f"{frame['name']}.png", png_bytes(mask.astype(np.uint8) * 255))
+            require(covered > 0, source, "every mask is empty", "masks mark the object in white (or alpha)")
+            replace_dir(out, capture / target)
+            return len(frames)
+        finally:
+            shutil.rmtree(tmp, ignore_errors=True)
+
+
+class SFT_OT_import_environment(bpy.types.Operator, ImportHelper):
+    """Light the World with an equirectangular EXR/HDR map placed as the backend places it"""
+
+    bl_idname = "sft.import_environment"
+    bl_label = "Import Environment Map"
+    bl_options = {"REGISTER", "UNDO"}
+
+    filter_glob: StringProperty(default="*.exr;*.hdr", options={"HIDDEN"})
+    strength: FloatProperty(name="Strength", default=1.0, min=0.0, soft_max=10.0,
+                            description="Radiance multiplier (Background strength)")
+    rotation_z: FloatProperty(name="Rotation Z", default=0.0, soft_min=-180.0, soft_max=180.0,
+                              description="Rotation of the map about the world Z axis, degrees")
+
+    def execute(self, context):
+        try:
+            image = world.load_environment_image(abspath(self.filepath))
+        except AddonInputError as err:
+            return fail(self, err)
+        scene = context.scene
+        if scene.world is None:
+            scene.world = bpy.data.worlds.new("SfT World")
+        world.set_environment(scene.world, image, self.strength, self.rotation_z)
+        scene.sft.env_path = image.filepath
+        scene.sft.env_strength = self.strength
+        scene.sft.env_rotation = self.rotation_z
+        self.report({"INFO"}, f"World lit by {Path(image.filepath).name}")
+        return {"FINISHED"}
+
+
+CLASSES = (SFT_OT_import_video, SFT_OT_import_masks, SFT_OT_import_environment)

@@ -1,0 +1,69 @@
+"""The modal pattern shared by operators that run a backend job.
+
+``invoke`` starts the job and reads its events on a window timer without blocking the UI
+(Esc asks for a clean stop); ``execute`` (scripts, background mode, where timers never
+fire) drives the same :meth:`jobs.Job.step` in a loop until the process ends."""
+
+import bpy
+
+from .. import jobs
+from ..errors import AddonInputError
+from .common import fail
+
+TIMER_SECONDS = 0.2
+
+
+class JobModal:
+    job_kind = "job"
+
+    def start(self, context) -> jobs.Job:
+        raise NotImplementedError
+
+    def finish(self, context, job: jobs.Job) -> set[str]:
+        raise NotImplementedError
+
+    def _begin(self, context):
+        running = jobs.ACTIVE.get(self.job_kind)
+        if running is not None and running.running:
+            raise AddonInputError(None, f"a {self.job_kind} run is already in progress",
+                                  "wait for it or cancel it")
+        return self.start(context)
+
+    def execute(self, context):
+        try:
+            job = self._begin(context)
+        except AddonInputError as err:
+            return fail(self, err)
+        try:
+            job.run_blocking(context)
+        except KeyboardInterrupt:  # Ctrl-C in a headless run: stop cleanly, keep the snapshot
+            job.stop()
+            job.run_blocking(context)
+        return self.finish(context, job)
+
+    def invoke(self, context, event):
+        if bpy.app.background or context.window is None:
+            return self.execute(context)
+        try:
+            self._job = self._begin(context)
+        except AddonInputError as err:
+            return fail(self, err)
+        wm = context.window_manager
+        self._timer = wm.event_timer_add(TIMER_SECONDS, window=context.window)
+        wm.modal_handler_add(self)
+        jobs.tag_redraw(context)
+        return {"RUNNING_MODAL"}
+
+    def modal(self, context, event):
+        if event.type == "ESC" and event.value == "PRESS":
+            self._job.stop()
+            jobs.tag_redraw(context)
+            return {"RUNNING_MODAL"}
+        if event.type != "TIMER":
+            return {"PASS_THROUGH"}
+        if self._job.step(context):
+            jobs.tag_redraw(context)
+            return {"PASS_THROUGH"}
+        context.window_manager.event_timer_remove(self._timer)
+        jobs.tag_redraw(context)
+        return self.finish(context, self._job)

@@ -1,0 +1,56 @@
+"""Relit Preview: Cycles renders the reconstruction beside the matching input frame."""
+
+import bpy
+from bpy.props import StringProperty
+
+from .. import capture_file, preview, scene_mesh
+from ..errors import AddonInputError, require
+from .common import abspath, capture_dir, fail
+
+
+class SFT_OT_relit_preview(bpy.types.Operator):
+    """Render the reconstruction in Cycles from an input frame's camera, under the captured
+    lighting or another HDR, and show it beside that frame"""
+
+    bl_idname = "sft.relit_preview"
+    bl_label = "Relit Preview"
+    bl_options = {"REGISTER", "UNDO"}
+
+    filepath: StringProperty(name="Output", subtype="FILE_PATH", default="",
+                             description="PNG to write (empty: <run or capture>/preview/<frame>.png)")
+    object_name: StringProperty(name="Object", default=scene_mesh.OBJECT_NAME)
+
+    def execute(self, context):
+        sft = context.scene.sft
+        try:
+            info = capture_file.read_capture(capture_dir(context))
+            n = len(info.frames)
+            require(sft.preview_frame < n, None, f"frame {sft.preview_frame} does not exist ({n} frames)",
+                    f"choose a frame from 0 to {n - 1}")
+            frame = info.frames[sft.preview_frame]
+            require(frame.image.is_file(), frame.image, "input frame not found", "restore the capture's images")
+            obj = bpy.data.objects.get(self.object_name)
+            require(obj is not None and obj.type == "MESH" and len(obj.data.polygons) > 0, None,
+                    f"no mesh object '{self.object_name}' to render", "run Reconstruct first")
+            if sft.preview_env:
+                env = {"path": abspath(sft.preview_env), "strength": sft.preview_env_strength,
+                       "rotation_z_deg": sft.preview_env_rotation}
+            else:
+                env = info.environment
+            if env:
+                preview.world.load_environment_image(env["path"])  # validate before rendering
+            base = abspath(sft.run_dir) if sft.run_dir else info.root
+            out = abspath(self.filepath) if self.filepath else base / "preview" / f"{frame.name}.png"
+            rendered = out.with_name(f"{out.stem}_render.png")
+            out.parent.mkdir(parents=True, exist_ok=True)
+            preview.render(context, obj, info, sft.preview_frame, env, not sft.preview_env,
+                           sft.preview_samples, sft.preview_percentage, sft.device, rendered)
+            width, height = preview.side_by_side(rendered, frame.image, out)
+        except AddonInputError as err:
+            return fail(self, err)
+        preview.show(out)
+        self.report({"INFO"}, f"relit preview {width}x{height}: {out}")
+        return {"FINISHED"}
+
+
+CLASSES = (SFT_OT_relit_preview,)

@@ -1,0 +1,89 @@
+"""Reconstruct: the backend refines mesh and material in its own process while the newest
+snapshot streams into the "Reconstruction" object."""
+
+import shlex
+import time
+
+import bpy
+from bpy.props import StringProperty
+
+from .. import interpreter, jobs, progress, scene_mesh
+from ..errors import AddonInputError, require
+from ..preferences import backend_python
+from .common import abspath, capture_dir, fail
+from .modal import JobModal
+
+
+class SFT_OT_reconstruct(JobModal, bpy.types.Operator):
+    """Reconstruct shape and material in a background process; the mesh updates live.
+    Esc or Cancel stops it cleanly and keeps the last snapshot"""
+
+    bl_idname = "sft.reconstruct"
+    bl_label = "Reconstruct"
+    bl_options = {"REGISTER", "UNDO"}
+
+    job_kind = "reconstruct"
+
+    capture_dir: StringProperty(name="Capture", subtype="DIR_PATH", default="",
+                                description="Capture folder (empty: the scene's)")
+    run_dir: StringProperty(name="Run Folder", subtype="DIR_PATH", default="",
+                            description="Output folder (empty: <capture>/runs/<date-time>)")
+    object_name: StringProperty(name="Object", default=scene_mesh.OBJECT_NAME,
+                                description="Object that shows the evolving mesh")
+
+    def start(self, context) -> jobs.Job:
+        capture = capture_dir(context, self.capture_dir)
+        require(interpreter.has_command("reconstruct"), None,
+                "the backend beside the add-on has no 'reconstruct' command",
+                "update the add-on to a version whose backend includes it")
+        sft = context.scene.sft
+        run = abspath(self.run_dir) if self.run_dir else capture / "runs" / time.strftime("%Y%m%d-%H%M%S")
+        require(not (run.is_dir() and any(run.iterdir())), run, "run folder is not empty",
+                "choose a new run folder")
+        try:
+            extra = shlex.split(sft.extra_args)
+        except ValueError as err:
+            raise AddonInputError(None, f"extra arguments: {err}", "fix the quoting") from err
+        args = ["reconstruct", str(capture), "--out", str(run), "--preset", sft.preset, *extra]
+        try:
+            job = jobs.ReconstructJob(backend_python(context), args, run, self.object_name)
+        except OSError as err:
+            raise AddonInputError(backend_python(context), f"cannot start the backend ({err.strerror})",
+                                  "choose the backend Python in the add-on preferences") from err
+        sft.run_dir = str(run)
+        return job
+
+    def finish(self, context, job: jobs.ReconstructJob):
+        state = job.state
+        changed = job.applied is not None
+        if state.status == progress.DONE:
+            metrics = state.done.get("metrics") or {}
+            shown = ", ".join(f"{k} {v:.4g}" for k, v in metrics.items() if isinstance(v, (int, float)))
+            self.report({"INFO"}, f"reconstruction done in {progress.format_duration(state.elapsed())}"
+                                  + (f": {shown}" if shown else ""))
+        elif state.status == progress.CANCELLED:
+            self.report({"WARNING"}, "reconstruction cancelled; the last snapshot is kept"
+                        if changed else "reconstruction cancelled before its first snapshot")
+        else:
+            self.report({"ERROR"}, f"reconstruction failed: {state.message}")
+        return {"FINISHED"} if changed else {"CANCELLED"}
+
+
+class SFT_OT_reconstruct_cancel(bpy.types.Operator):
+    """Stop the running reconstruction cleanly (the last snapshot stays in the scene and on disk)"""
+
+    bl_idname = "sft.reconstruct_cancel"
+    bl_label = "Cancel"
+
+    @classmethod
+    def poll(cls, context):
+        job = jobs.ACTIVE.get("reconstruct")
+        return job is not None and job.running
+
+    def execute(self, context):
+        jobs.ACTIVE["reconstruct"].stop()
+        jobs.tag_redraw(context)
+        return {"FINISHED"}
+
+
+CLASSES = (SFT_OT_reconstruct, SFT_OT_reconstruct_cancel)

@@ -1,0 +1,43 @@
+"""Quality presets and their calibrated cost (bpy-free).
+
+``backend/presets.json`` (written by ``python -m backend bench calibrate``) holds
+``{"machine": ..., "presets": {"draft": {"expected_minutes": ..., "expected_f1": ...}, ...}}``;
+without it the panel says "not calibrated"."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from . import interpreter
+
+PRESETS = (
+    ("draft", "Draft", "Coarse mesh and few iterations: a quick look"),
+    ("balanced", "Balanced", "The default trade-off between time and accuracy"),
+    ("final", "Final", "Fine mesh and full material: best accuracy, slowest"),
+)
+
+
+def calibration(root: Path = interpreter.PACKAGE_DIR) -> dict:
+    """The calibration file's contents, or {} when it is absent or unreadable."""
+    try:
+        doc = json.loads((Path(root) / "backend" / "presets.json").read_text())
+    except (OSError, ValueError):
+        return {}
+    return doc if isinstance(doc, dict) and isinstance(doc.get("presets"), dict) else {}
+
+
+def describe(preset: str, calib: dict) -> str:
+    """'~12 min, F1 0.91 (machine)' or 'not calibrated'."""
+    entry = calib.get("presets", {}).get(preset) if calib else None
+    if not isinstance(entry, dict):
+        return "not calibrated"
+    parts = []
+    if isinstance(entry.get("expected_minutes"), (int, float)):
+        parts.append(f"~{entry['expected_minutes']:.3g} min")
+    if isinstance(entry.get("expected_f1"), (int, float)):
+        parts.append(f"F1 {entry['expected_f1']:.2f}")
+    if not parts:
+        return "not calibrated"
+    machine = calib.get("machine")
+    return ", ".join(parts) + (f" on {machine}" if isinstance(machine, str) and machine else "")

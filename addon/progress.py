@@ -1,0 +1,130 @@
+"""The state of a reconstruction as its events describe it (bpy-free).
+
+:class:`RunState` folds the backend's events (docs/protocol.md) into what the panel shows:
+status, stage, iteration, loss, overall fraction, ETA and the newest snapshot."""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+STARTING, RUNNING, STOPPING, DONE, CANCELLED, FAILED = (
+    "starting", "running", "stopping", "done", "cancelled", "failed")
+
+
+@dataclass
+class RunState:
+    status: str = STARTING
+    stage: str = ""
+    level: int | None = None
+    iteration: int = 0
+    iterations: int = 0
+    fraction: float = 0.0
+    loss: float | None = None
+    faces: int | None = None
+    variant: str = ""
+    snapshot: str | None = None  # newest snapshot mesh, relative to the run folder
+    snapshots: int = 0  # snapshot events seen
+    message: str = ""  # error or cancel message, or the final summary
+    warnings: list[str] = field(default_factory=list)
+    done: dict = field(default_factory=dict)  # the `done` event
+    started: float = field(default_factory=time.monotonic)
+    _eta_s: float | None = None
+    _eta_at: float = 0.0
+
+    def update(self, event: dict) -> None:
+        kind = event.get("event")
+        if kind in ("start", "stage", "progress") and self.status == STARTING:
+            self.status = RUNNING
+        if kind == "variant":
+            self.variant = str(event.get("variant", ""))
+        elif kind == "stage":
+            self.stage = str(event.get("stage", ""))
+            self.level = event.get("level")
+            self.faces = event.get("faces", self.faces)
+        elif kind == "progress":
+            self.stage = str(event.get("stage", self.stage))
+            self.level = event.get("level", self.level)
+            self.iteration = int(event.get("iteration") or 0)
+            self.iterations = int(event.get("iterations") or 0)
+            self.loss = event.get("loss", self.loss)
+            self.faces = event.get("faces", self.faces)
+            if event.get("fraction") is not None:
+                self.fraction = min(1.0, max(0.0, float(event["fraction"])))
+            if event.get("eta_s") is not None:
+                self._eta_s, self._eta_at = float(event["eta_s"]), time.monotonic()
+        elif kind == "snapshot":
+            self.snapshot = event.get("path", self.snapshot)
+            self.snapshots += 1
+            if event.get("loss") is not None:
+                self.loss = event["loss"]
+        elif kind == "warning":
+            self.warnings.append(str(event.get("message", "")))
+        elif kind == "error":
+            self.status, self.message = FAILED, str(event.get("message", "the backend failed"))
+        elif kind == "cancelled":
+            self.status, self.message = CANCELLED, "cancelled; the last snapshot is kept"
+        elif kind == "done":
+            self.status, self.fraction, self.done = DONE, 1.0, dict(event)
+            self._eta_s = 0.0
+
+    def finish(self, returncode: int, log_tail: str = "") -> None:
+        """Settle the status once the process exited (a crash emits no event)."""
+        if returncode == 130 or self.status == CANCELLED:
+            self.status = CANCELLED
+            self.message = self.message or "cancelled; the last snapshot is kept"
+        elif returncode == 0 and self.status != FAILED:
+            self.status = DONE
+            self.fraction = 1.0
+        else:
+            self.status = FAILED
+            self.message = self.message or f"the backend exited with code {returncode}"
+            if log_tail:
+                self.message += f"; log: {log_tail}"
+        self._eta_s, self._eta_at = 0.0, time.monotonic()
+
+    def stopping(self) -> None:
+        if self.status in (STARTING, RUNNING):
+            self.status = STOPPING
+
+    @property
+    def active(self) -> bool:
+        return self.status in (STARTING, RUNNING, STOPPING)
+
+    def elapsed(self, now: float | None = None) -> float:
+        return (time.monotonic() if now is None else now) - self.started
+
+    def eta(self, now: float | None = None) -> float | None:
+        """Seconds left: the backend's estimate aged since it arrived, else extrapolated
+        from the elapsed time and the overall fraction."""
+        now = time.monotonic() if now is None else now
+        if self._eta_s is not None:
+            return max(0.0, self._eta_s - (now - self._eta_at))
+        if self.fraction > 0.01:
+            return self.elapsed(now) * (1.0 - self.fraction) / self.fraction
+        return None
+
+    def eta_text(self, now: float | None = None) -> str:
+        return "ETA --" if (eta := self.eta(now)) is None else f"ETA {format_duration(eta)}"
+
+    def headline(self) -> str:
+        """One line for the panel: stage, iteration and loss."""
+        if not self.active:
+            return f"{self.status}: {self.message}" if self.message else self.status
+        parts = [self.stage or self.status]
+        if self.level is not None:
+            parts[0] += f" (level {self.level})"
+        if self.iterations:
+            parts.append(f"it {self.iteration}/{self.iterations}")
+        if self.loss is not None:
+            parts.append(f"loss {self.loss:.4g}")
+        return "  ".join(parts)
+
+
+def format_duration(seconds: float) -> str:
+    seconds = int(round(seconds))
+    if seconds < 60:
+        return f"{seconds}s"
+    if seconds < 3600:
+        return f"{seconds // 60}m {seconds % 60:02d}s"
+    return f"{seconds // 3600}h {seconds % 3600 // 60:02d}m"

@@ -1,0 +1,15 @@
+"""The "Shape from Tracing" sidebar tab of the 3D viewport."""
+
+import bpy
+
+from . import panels
+
+
+def register():
+    for cls in panels.CLASSES:
+        bpy.utils.register_class(cls)
+
+
+def unregister():
+    for cls in reversed(panels.CLASSES):
+        bpy.utils.unregister_class(cls)

@@ -1,0 +1,122 @@
+"""Panels Capture / Cameras / Reconstruct / Preview in the sidebar tab "Shape from Tracing"."""
+
+from pathlib import Path
+
+import bpy
+
+from .. import frames, jobs, presets, progress, scene_cameras, scene_mesh
+
+CATEGORY = "Shape from Tracing"
+
+
+class _Panel:
+    bl_space_type = "VIEW_3D"
+    bl_region_type = "UI"
+    bl_category = CATEGORY
+
+
+def _draw_job(layout, job: jobs.Job | None, cancel: str | None = None) -> bool:
+    """Progress bar, stage, loss and ETA of a job; True while it runs."""
+    if job is None:
+        return False
+    state = job.state
+    col = layout.column(align=True)
+    if state.active:
+        col.progress(factor=state.fraction, type="BAR", text=f"{state.fraction:.0%}  {state.eta_text()}")
+        col.label(text=state.headline())
+        if state.status == progress.STOPPING:
+            col.label(text="Stopping after the current step...", icon="PAUSE")
+        elif cancel:
+            col.operator(cancel, icon="CANCEL")
+        return True
+    icon = {"done": "CHECKMARK", "cancelled": "CANCEL"}.get(state.status, "ERROR")
+    col.label(text=state.headline(), icon=icon)
+    return False
+
+
+class SFT_PT_capture(_Panel, bpy.types.Panel):
+    bl_idname = "SFT_PT_capture"
+    bl_label = "Capture"
+
+    def draw(self, context):
+        sft = context.scene.sft
+        layout = self.layout
+        layout.prop(sft, "capture_dir")
+        col = layout.column(align=True)
+        col.operator("sft.import_video", icon="FILE_MOVIE")
+        col.operator("sft.import_masks", icon="MOD_MASK")
+        col.operator("sft.import_environment", icon="WORLD")
+        capture = Path(bpy.path.abspath(sft.capture_dir)) if sft.capture_dir else None
+        if capture and (capture / frames.MANIFEST).is_file():
+            n = len(list((capture / frames.IMAGES).glob("*.png")))
+            m = len(list((capture / frames.MASKS).glob("*.png"))) if (capture / frames.MASKS).is_dir() else 0
+            layout.label(text=f"{n} frames, {m} masks", icon="IMAGE_DATA")
+        if sft.env_path:
+            layout.label(text=f"{Path(sft.env_path).name}  x{sft.env_strength:g}  {sft.env_rotation:g}°",
+                         icon="WORLD_DATA")
+
+
+class SFT_PT_cameras(_Panel, bpy.types.Panel):
+    bl_idname = "SFT_PT_cameras"
+    bl_label = "Cameras"
+
+    def draw(self, context):
+        layout = self.layout
+        running = _draw_job(layout, jobs.ACTIVE.get("solve"))
+        col = layout.column(align=True)
+        col.enabled = not running
+        col.operator("sft.import_cameras", icon="CAMERA_DATA")
+        col.operator("sft.solve_cameras", icon="TRACKING")
+        collection = bpy.data.collections.get(scene_cameras.COLLECTION)
+        if collection and collection.objects:
+            layout.label(text=f"{len(collection.objects)} cameras", icon="OUTLINER_OB_CAMERA")
+
+
+class SFT_PT_reconstruct(_Panel, bpy.types.Panel):
+    bl_idname = "SFT_PT_reconstruct"
+    bl_label = "Reconstruct"
+
+    def draw(self, context):
+        sft = context.scene.sft
+        layout = self.layout
+        job = jobs.ACTIVE.get("reconstruct")
+        running = job is not None and job.running
+        col = layout.column()
+        col.enabled = not running
+        col.row().prop(sft, "preset", expand=True)
+        calibration = presets.calibration()
+        box = col.box().column(align=True)
+        for key, label, _ in presets.PRESETS:
+            box.label(text=f"{label}: {presets.describe(key, calibration)}",
+                      icon="RADIOBUT_ON" if key == sft.preset else "RADIOBUT_OFF")
+        col.prop(sft, "extra_args")
+        if not running:
+            layout.operator("sft.reconstruct", icon="PLAY")
+        _draw_job(layout, job, cancel="sft.reconstruct_cancel")
+        obj = bpy.data.objects.get(scene_mesh.OBJECT_NAME)
+        if obj is not None and obj.type == "MESH" and obj.data.polygons:
+            layout.label(text=f"{len(obj.data.polygons)} faces", icon="MESH_DATA")
+            layout.operator("sft.export_gltf", icon="EXPORT")
+
+
+class SFT_PT_preview(_Panel, bpy.types.Panel):
+    bl_idname = "SFT_PT_preview"
+    bl_label = "Preview"
+
+    def draw(self, context):
+        sft = context.scene.sft
+        layout = self.layout
+        layout.prop(sft, "preview_frame")
+        layout.prop(sft, "preview_env")
+        if sft.preview_env:
+            row = layout.row(align=True)
+            row.prop(sft, "preview_env_strength")
+            row.prop(sft, "preview_env_rotation")
+        row = layout.row(align=True)
+        row.prop(sft, "preview_samples")
+        row.prop(sft, "preview_percentage")
+        layout.prop(sft, "device")
+        layout.operator("sft.relit_preview", icon="RENDER_STILL")
+
+
+CLASSES = (SFT_PT_capture, SFT_PT_cameras, SFT_PT_reconstruct, SFT_PT_preview)

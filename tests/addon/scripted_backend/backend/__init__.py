@@ -1,0 +1,1 @@
+"""A scripted stand-in for the backend, used only to test the add-on's process handling."""

@@ -1,0 +1,249 @@
+"""The add-on's bpy-free logic: PLY reading, environment and camera conventions, frames,
+presets, run state and interpreter choice (no Blender needed)."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import time
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from addon import capture_file, envmap, frames, interpreter, presets, progress
+from addon.errors import AddonInputError
+from addon.files import png_bytes, replace_dir, write_atomic
+from addon.ply import read_display_mesh
+from backend.geometry.mesh import Mesh, save_mesh
+
+
+def test_display_mesh_roundtrip_with_backend_writer(tmp_path):
+    rng = np.random.default_rng(0)
+    v = rng.normal(size=(50, 3))
+    f = rng.integers(0, 50, size=(80, 3))
+    cols = rng.random((50, 3)).astype(np.float32)
+    spec, rough = rng.random(50).astype(np.float32), rng.random(50).astype(np.float32)
+    save_mesh(tmp_path / "m.ply", Mesh(v, f, cols, {"specular": spec, "roughness": rough}))
+    dm = read_display_mesh(tmp_path / "m.ply")
+    assert dm.vertices.dtype == np.float32 and dm.faces.dtype == np.int32
+    np.testing.assert_allclose(dm.vertices, v.astype(np.float32))
+    np.testing.assert_array_equal(dm.faces, f)
+    np.testing.assert_array_equal(dm.colors, cols)
+    np.testing.assert_array_equal(dm.attributes["specular"], spec)
+    np.testing.assert_array_equal(dm.attributes["roughness"], rough)
+
+
+def test_display_mesh_rejects_bad_files(tmp_path):
+    save_mesh(tmp_path / "m.ply", Mesh(np.eye(3), [[0, 1, 2]]))
+    data = (tmp_path / "m.ply").read_bytes()
+    (tmp_path / "cut.ply").write_bytes(data[:-5])
+    (tmp_path / "text.ply").write_text("ply\nformat ascii 1.0\nelement vertex 0\nend_header\n")
+    (tmp_path / "junk.ply").write_bytes(b"\x00\x01garbage")
+    for name, words in [("cut.ply", "truncated"), ("text.ply", "binary"), ("junk.ply", "not a PLY"),
+                        ("missing.ply", "cannot read")]:
+        with pytest.raises(AddonInputError, match=words) as err:
+            read_display_mesh(tmp_path / name)
+        assert name in str(err.value) and "Fix:" in str(err.value)
+
+
+@pytest.mark.parametrize("rotation", [0.0, 30.0, -75.0])
+def test_envmap_convention(rotation):
+    # the documented formula, written out independently
+    for d in np.random.default_rng(1).normal(size=(20, 3)):
+        d /= np.linalg.norm(d)
+        a = math.radians(rotation)
+        dr = np.array([math.cos(a) * d[0] - math.sin(a) * d[1], math.sin(a) * d[0] + math.cos(a) * d[1], d[2]])
+        u, v = envmap.direction_to_uv(d, rotation)
+        assert u == pytest.approx((0.5 - math.atan2(dr[1], dr[0]) / (2 * math.pi)) % 1.0)
+        assert v == pytest.approx(math.acos(dr[2]) / math.pi)
+        np.testing.assert_allclose(envmap.uv_to_direction(u, v, rotation), d, atol=1e-12)
+    # +X is the image centre, +Z its top, +Y a quarter to the left
+    assert envmap.direction_to_uv([1, 0, 0]) == pytest.approx((0.5, 0.5))
+    assert envmap.direction_to_uv([0, 0, 1])[1] == pytest.approx(0.0)
+    assert envmap.direction_to_uv([0, 1, 0]) == pytest.approx((0.25, 0.5))
+
+
+def _cam(**over):
+    cam = {"width": 64, "height": 48, "fx": 50.0, "fy": 50.0, "cx": 32.0, "cy": 24.0,
+           "camera_to_world": np.eye(4).tolist()}
+    cam.update(over)
+    return cam
+
+
+def test_blender_camera_intrinsics():
+    c = capture_file.blender_camera(_cam())
+    assert c.lens == pytest.approx(50 / 64 * 36) and c.sensor_width == 36
+    assert (c.shift_x, c.shift_y, c.pixel_aspect) == (0.0, 0.0, 1.0)
+    c = capture_file.blender_camera(_cam(cx=40.0, cy=20.0, fy=60.0))
+    assert c.shift_x == pytest.approx(-8 / 64)  # principal point right of centre: window shifts left
+    assert c.shift_y == pytest.approx(-4 / 64 * 50 / 60)  # principal point above centre
+    assert c.pixel_aspect == pytest.approx(1.2)
+
+
+@pytest.mark.parametrize("change, words", [
+    ({"fx": -1.0}, "positive"), ({"camera_to_world": [[float("nan")] * 4] * 4}, "NaN"),
+    ({"camera_to_world": (np.eye(4) * [1, 2, 1, 1]).tolist()}, "orthogonal"),
+    ({"camera_to_world": [[1, 0], [0, 1]]}, "4x4"), ({"fy": "x"}, "numbers")])
+def test_blender_camera_rejects_bad_cameras(change, words):
+    with pytest.raises(AddonInputError, match=words):
+        capture_file.blender_camera(_cam(**change), "capture.json", "frame 0")
+
+
+def test_read_capture(tmp_path):
+    doc = {"format": capture_file.FORMAT, "version": 1,
+           "frames": [{"name": "a", "image": "images/a.png", "mask": "masks/a.png", "camera": _cam(),
+                       "lights": [{"type": "point", "position": [0, 0, 3], "intensity_w_per_sr": [1, 2, 3]}]}],
+           "environment": {"path": "env.exr", "strength": 2.0, "rotation_z_deg": 15}}
+    (tmp_path / "capture.json").write_text(json.dumps(doc))
+    info = capture_file.read_capture(tmp_path)
+    assert info.frames[0].image == tmp_path / "images/a.png" and info.frames[0].mask == tmp_path / "masks/a.png"
+    assert info.frames[0].lights[0]["intensity_w_per_sr"] == [1, 2, 3]
+    assert info.environment == {"path": tmp_path / "env.exr", "strength": 2.0, "rotation_z_deg": 15.0}
+    (tmp_path / "capture.json").write_text("{broken")
+    with pytest.raises(AddonInputError, match="invalid JSON"):
+        capture_file.read_capture(tmp_path)
+    with pytest.raises(AddonInputError, match="capture not found"):
+        capture_file.read_capture(tmp_path / "nowhere")
+
+
+def test_pick_frames_and_blur():
+    assert frames.pick_frames(10, every_nth=3) == [0, 3, 6, 9]
+    assert frames.pick_frames(100, target_count=5) == [0, 25, 50, 74, 99]
+    assert frames.pick_frames(4, target_count=10) == [0, 1, 2, 3]
+    rng = np.random.default_rng(2)
+    sharp = rng.random((40, 40))
+    k = np.ones(5) / 5
+    blurred = np.apply_along_axis(lambda r: np.convolve(r, k, "same"), 0,
+                                  np.apply_along_axis(lambda r: np.convolve(r, k, "same"), 1, sharp))
+    scores = [frames.sharpness(sharp), frames.sharpness(blurred), frames.sharpness(sharp * 0.9)]
+    assert scores[1] < 0.2 * scores[0]
+    assert frames.sharp_enough(scores, 0.3) == [True, False, True]
+    assert frames.sharp_enough(scores, 0.0) == [True, True, True]
+
+
+def test_match_masks():
+    assert frames.match_masks(3, [0, 10, 20], 30, "m") == [0, 1, 2]
+    assert frames.match_masks(30, [0, 10, 20], 30, "m") == [0, 10, 20]
+    with pytest.raises(AddonInputError, match="7 masks match neither the 3 frames nor the 30"):
+        frames.match_masks(7, [0, 10, 20], 30, "masks/")
+
+
+def test_mask_from_rgba():
+    rgba = np.zeros((2, 2, 4), np.float32)
+    rgba[..., 3] = 1
+    rgba[0, 0, :3] = 1
+    assert frames.mask_from_rgba(rgba).tolist() == [[255, 0], [0, 0]]
+    rgba[..., :3] = 1
+    rgba[..., 3] = [[0, 1], [1, 0]]  # alpha carries the mask
+    assert frames.mask_from_rgba(rgba).tolist() == [[0, 255], [255, 0]]
+
+
+@pytest.mark.parametrize("shape", [(5, 7), (5, 7, 3), (5, 7, 4)])
+def test_png_bytes_decode_exactly(tmp_path, shape):
+    pixels = np.random.default_rng(3).integers(0, 256, size=shape, dtype=np.uint8)
+    write_atomic(tmp_path / "p.png", png_bytes(pixels))
+    np.testing.assert_array_equal(np.asarray(Image.open(tmp_path / "p.png")), pixels)
+    assert [p.name for p in tmp_path.iterdir()] == ["p.png"]
+
+
+def test_replace_dir(tmp_path):
+    (tmp_path / "dst").mkdir()
+    (tmp_path / "dst" / "old").write_text("old")
+    (tmp_path / "new").mkdir()
+    (tmp_path / "new" / "fresh").write_text("new")
+    replace_dir(tmp_path / "new", tmp_path / "dst")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["dst"]
+    assert [p.name for p in (tmp_path / "dst").iterdir()] == ["fresh"]
+
+
+def test_image_sequence_natural_order(tmp_path):
+    for name in ["m10.png", "m2.png", "m1.png", "notes.txt"]:
+        (tmp_path / name).write_bytes(b"")
+    assert [p.name for p in frames.image_sequence(tmp_path / "m2.png")] == ["m1.png", "m2.png", "m10.png"]
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(AddonInputError, match="no images"):
+        frames.image_sequence(tmp_path / "empty")
+    with pytest.raises(AddonInputError, match="folder not found"):
+        frames.image_sequence(tmp_path / "missing" / "x.png")
+
+
+def test_presets_calibration(tmp_path):
+    assert presets.calibration(tmp_path) == {}
+    assert presets.describe("draft", {}) == "not calibrated"
+    (tmp_path / "backend").mkdir()
+    (tmp_path / "backend" / "presets.json").write_text(json.dumps(
+        {"machine": "2-core CI", "presets": {"draft": {"expected_minutes": 3.5, "expected_f1": 0.812}}}))
+    calib = presets.calibration(tmp_path)
+    assert presets.describe("draft", calib) == "~3.5 min, F1 0.81 on 2-core CI"
+    assert presets.describe("final", calib) == "not calibrated"
+    (tmp_path / "backend" / "presets.json").write_text("{not json")
+    assert presets.calibration(tmp_path) == {}
+
+
+def test_run_state_follows_events():
+    state = progress.RunState()
+    assert state.active and state.eta() is None
+    state.update({"event": "variant", "variant": "llvm_ad_rgb"})
+    state.update({"event": "stage", "stage": "geometry", "level": 1, "faces": 500})
+    state.update({"event": "progress", "stage": "geometry", "level": 1, "iteration": 10, "iterations": 40,
+                  "loss": 0.0123, "faces": 500, "fraction": 0.25, "eta_s": 30.0})
+    assert state.status == progress.RUNNING and state.fraction == 0.25
+    assert state.eta(time.monotonic()) == pytest.approx(30.0, abs=0.5)
+    assert state.headline() == "geometry (level 1)  it 10/40  loss 0.0123"
+    assert state.eta_text(state._eta_at + 12.0) == "ETA 18s"  # the estimate ages
+    state.update({"event": "snapshot", "path": "snapshots/000010.ply", "iteration": 10, "faces": 500, "loss": 0.01})
+    assert state.snapshot == "snapshots/000010.ply" and state.snapshots == 1
+    state.update({"event": "done", "result": "result.ply", "report": "report.json", "metrics": {"f1": 0.9}})
+    assert state.status == progress.DONE and not state.active and state.fraction == 1.0
+
+
+def test_run_state_eta_without_backend_estimate():
+    state = progress.RunState(started=time.monotonic() - 10.0)
+    state.update({"event": "progress", "fraction": 0.25})
+    assert state.eta() == pytest.approx(30.0, abs=0.5)
+
+
+def test_run_state_settles_crash_and_cancel():
+    crashed = progress.RunState()
+    crashed.finish(1, "Traceback ... | RuntimeError: boom")
+    assert crashed.status == progress.FAILED and "RuntimeError: boom" in crashed.message
+    cancelled = progress.RunState()
+    cancelled.finish(130)
+    assert cancelled.status == progress.CANCELLED
+    failed = progress.RunState()
+    failed.update({"event": "error", "message": "capture.json: no frames"})
+    failed.finish(2)
+    assert failed.message.startswith("capture.json: no frames")
+
+
+def test_format_duration():
+    assert [progress.format_duration(s) for s in (5, 65, 3725)] == ["5s", "1m 05s", "1h 02m"]
+
+
+def test_default_python_order(tmp_path, monkeypatch):
+    monkeypatch.setenv("SFT_PYTHON", "/opt/sft/bin/python")
+    assert interpreter.default_python(tmp_path) == "/opt/sft/bin/python"
+    venv = tmp_path / ".venv" / "bin"
+    venv.mkdir(parents=True)
+    (venv / "python").write_text("")
+    assert interpreter.default_python(tmp_path) == str(venv / "python")
+    monkeypatch.delenv("SFT_PYTHON")
+    assert interpreter.default_python(tmp_path / "elsewhere") and "SFT" not in interpreter.default_python(tmp_path / "x")
+
+
+def test_backend_command_discovery():
+    assert interpreter.has_command("check") and interpreter.has_command("synth")
+    assert not interpreter.has_command("no-such-command")
+    env = interpreter.environment()
+    assert env["PYTHONPATH"].split(os.pathsep)[0] == str(interpreter.PACKAGE_DIR)
+
+
+def test_check_reports_real_interpreter(tmp_path):
+    import sys
+
+    ok = interpreter.check(sys.executable)
+    assert ok.ok and ok.summary.startswith("OK") and "mitsuba" in ok.summary
+    missing = interpreter.check(str(tmp_path / "no-python"))
+    assert not missing.ok and "interpreter not found" in missing.summary
