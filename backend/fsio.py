@@ -6,6 +6,7 @@ all at once or not at all."""
 from __future__ import annotations
 
 import contextlib
+import errno
 import json
 import os
 import shutil
@@ -16,9 +17,9 @@ from .errors import InputError
 
 
 def _check_space(path: Path, err: OSError):
-    if err.errno in (28, 122):  # ENOSPC, EDQUOT
-        raise InputError(path, "no space left on the device while writing",
-                         "free disk space or choose another output folder") from err
+    if err.errno in (errno.ENOSPC, errno.EDQUOT, errno.EFBIG):
+        raise InputError(path, f"cannot write: {os.strerror(err.errno).lower()}",
+                         "free disk space, raise the quota or choose another output folder") from err
     raise err
 
 

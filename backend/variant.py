@@ -2,7 +2,9 @@
 
 ``cuda_ad_rgb`` when a CUDA device works, else ``llvm_ad_rgb``. Override with the
 ``--variant`` option or the ``SFT_VARIANT`` environment variable. Dr.Jit's LLVM backend
-needs libLLVM >= 17; the one shipped in the virtual environment is used when present."""
+needs libLLVM >= 17; the one shipped in the virtual environment is used when present.
+Dr.Jit reads ``DRJIT_LIBLLVM_PATH`` when it is first imported, so ``backend/__init__``
+configures it before anything imports drjit."""
 
 from __future__ import annotations
 
@@ -65,6 +67,14 @@ def choose(requested: str | None = None, announce=None) -> str:
     except Exception as err:  # Dr.Jit reports a missing backend as ImportError/RuntimeError
         raise InputError(None, f"Mitsuba variant '{variant}' cannot start ({err})",
                          "run ./dev.sh setup, or set SFT_VARIANT to another variant") from err
+    if variant.startswith("llvm"):
+        import drjit as dr
+
+        major = dr.detail.llvm_version()[0]
+        if major < 17:  # LLVM <= 16 aborts the process on some kernels ("Cannot select fminimum")
+            raise InputError(None, f"Dr.Jit loaded libLLVM {major}, but it needs libLLVM >= 17",
+                             "import backend before drjit/mitsuba, or set DRJIT_LIBLLVM_PATH "
+                             "to the libLLVM.so in .venv/lib")
     _chosen = variant
     if announce:
         announce("variant", variant=variant, llvm=os.environ.get("DRJIT_LIBLLVM_PATH"))

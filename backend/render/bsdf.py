@@ -1,18 +1,24 @@
 """The surface model: Lambertian diffuse plus a GGX microfacet specular lobe.
 
-    f(wi, wo) = albedo / pi + specular * D(h) G(wi, wo) / (4 cos(wi) cos(wo)),  alpha = roughness^2
+    f(wi, wo) = albedo / pi + specular * D(h) G(wi, wo) / (4 cos(wi) cos(wo)),
+    alpha = (r0 + (1 - r0) roughness)^2
+
+The affine map of roughness in [0, 1] onto [r0, 1] keeps mirror-like settings away from
+the 0/0 of D and G without a clamp, so the roughness gradient never vanishes.
 
 ``albedo`` (RGB), ``specular`` (grey reflectance) and ``roughness`` come from a
-*material field*: any object with ``lookup(si, active) -> (albedo, specular, roughness)``,
-so constants, per-vertex attributes and mesh colors plug in the same way. The field's
-Dr.Jit arrays are read while the render is traced, so gradients reach them directly."""
+*material field*: any object with ``lookup(si, active) -> (albedo, specular, roughness)``
+and ``arrays() -> {name: Dr.Jit array}``, so constants, per-vertex attributes and mesh
+colors plug in the same way. The BSDF exposes the field's arrays to ``mi.traverse`` as
+``object.bsdf.<name>``: ``mi.render`` differentiates only through traversed parameters,
+and assigning through the parameters writes into the field's own arrays."""
 
 from __future__ import annotations
 
 import drjit as dr
 import mitsuba as mi
 
-MIN_ROUGHNESS = 0.02  # alpha = 4e-4: sharp highlights without 0/0 in D and G
+MIN_ROUGHNESS = 0.02  # r0: alpha >= 4e-4
 MIN_COS = 1e-4
 
 
@@ -27,13 +33,13 @@ class SurfaceBSDF(mi.BSDF):
 
     def _params(self, si, active):
         albedo, specular, roughness = self.field.lookup(si, active)
-        alpha = dr.square(dr.maximum(roughness, MIN_ROUGHNESS))
+        alpha = dr.square(MIN_ROUGHNESS + (1.0 - MIN_ROUGHNESS) * roughness)
         return albedo, specular, alpha
 
     @staticmethod
     def _specular_probability(albedo, specular):
-        lum = mi.luminance(albedo)
-        return dr.clip(specular / dr.maximum(specular + lum, 1e-6), 0.1, 0.9)
+        p = specular / (specular + mi.luminance(albedo) + 1e-6)
+        return dr.select(p < 0.1, 0.1, dr.select(p > 0.9, 0.9, p))
 
     def _eval_pdf(self, si, wo, active):
         albedo, specular, alpha = self._params(si, active)
@@ -84,7 +90,8 @@ class SurfaceBSDF(mi.BSDF):
         return self.field.lookup(si, active)[0]
 
     def traverse(self, callback):
-        pass
+        for name, value in self.field.arrays().items():
+            callback.put(name, value, mi.ParamFlags.Differentiable)
 
     def to_string(self):
         return "SurfaceBSDF[]"

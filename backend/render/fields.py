@@ -8,12 +8,16 @@ import numpy as np
 
 
 class ConstantField:
-    """One albedo (RGB), specular and roughness for the whole surface (Dr.Jit arrays of size 1)."""
+    """One albedo (RGB), specular and roughness for the whole surface (Dr.Jit arrays of size 1).
+
+    The arrays are opaque (evaluated), never literals: a literal would be baked into every
+    kernel, forcing a recompile for each new value and letting LLVM constant-fold it."""
 
     def __init__(self, albedo, specular: float, roughness: float):
         self.albedo = mi.Color3f(*(float(a) for a in np.broadcast_to(np.asarray(albedo, float), 3)))
         self.specular = mi.Float(float(specular))
         self.roughness = mi.Float(float(roughness))
+        dr.make_opaque(self.albedo, self.specular, self.roughness)
 
     def lookup(self, si, active):
         return self.albedo, dr.gather(mi.Float, self.specular, 0), dr.gather(mi.Float, self.roughness, 0)
@@ -39,3 +43,6 @@ class VertexField:
         spec = sum(w[k] * dr.gather(mi.Float, self.specular, idx[k], active) for k in range(3))
         rough = sum(w[k] * dr.gather(mi.Float, self.roughness, idx[k], active) for k in range(3))
         return albedo, spec, rough
+
+    def arrays(self) -> dict:
+        return {"albedo": self.albedo, "specular": self.specular, "roughness": self.roughness}

@@ -141,8 +141,10 @@ class SceneRenderer:
         self.params.update()
 
     def set_field(self, field) -> None:
+        """Swap the material field; parameters are re-traversed to expose its arrays."""
         self.field = field
         self.bsdf.field = field
+        self.params = mi.traverse(self.scene)
 
     def _set_lights(self, view: int) -> None:
         if self._light_view == view or self.n_lights == 0:

@@ -1,0 +1,31 @@
+"""Helpers shared by test folders: paths and the CLI runner (import as ``tests.helpers``)."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+SHARED = REPO.parent / "shared" / "data"
+
+
+def shared_data(*parts: str) -> Path:
+    """A path inside ../shared/data, or skip the test when the shared data is absent."""
+    path = SHARED.joinpath(*parts)
+    if not path.exists():
+        pytest.skip(f"shared data not available: {path}")
+    return path
+
+
+def run_cli(*args, timeout: float = 600, check: bool = False, cwd: Path | None = None) -> subprocess.CompletedProcess:
+    """Run ``python -m backend ARGS`` in a subprocess, capturing text output."""
+    env = dict(os.environ, PYTHONPATH=str(REPO), PYTHONUNBUFFERED="1")
+    proc = subprocess.run([sys.executable, "-m", "backend", *map(str, args)], capture_output=True,
+                          text=True, timeout=timeout, env=env, cwd=cwd or REPO)
+    if check and proc.returncode != 0:
+        raise AssertionError(f"backend {args} failed ({proc.returncode}):\n{proc.stderr[-3000:]}")
+    return proc
