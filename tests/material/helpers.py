@@ -65,3 +65,18 @@ def lookup_numpy(material, face, b1, b2) -> dict[str, np.ndarray]:
 def random_points(n_faces: int, n: int, rng) -> tuple[np.ndarray, np.ndarray]:
     """Random faces and barycentrics (n, 3), uniform inside each triangle."""
     return rng.integers(0, n_faces, n), rng.dirichlet([1, 1, 1], n)
+
+
+def three_plane_corner(n: int = 2) -> tuple[Mesh, np.ndarray]:
+    """Floor z = 0 (label 0), wall x = 0 (label 1), wall y = 0 (label 2), each the unit square
+    split into n x n quads, normals facing into the corner."""
+    g = np.linspace(0.0, 1.0, n + 1)
+    u, v = (a.ravel() for a in np.meshgrid(g, g, indexing="ij"))
+    zero = np.zeros_like(u)
+    planes = [np.c_[u, v, zero], np.c_[zero, u, v], np.c_[v, zero, u]]
+    quad = np.array([(i * (n + 1) + j, (i + 1) * (n + 1) + j, (i + 1) * (n + 1) + j + 1, i * (n + 1) + j + 1)
+                     for i in range(n) for j in range(n)])
+    tris = np.concatenate([quad[:, [0, 1, 2]], quad[:, [0, 2, 3]]])
+    step = (n + 1) ** 2
+    faces = np.concatenate([tris + k * step for k in range(3)])
+    return Mesh(np.vstack(planes), faces), np.repeat(np.arange(3), len(tris))
