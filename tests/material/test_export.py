@@ -1,0 +1,99 @@
+"""Baked texture atlas and result.glb: exact texels, valid glTF 2.0, imported by Blender's importer."""
+
+import json
+import subprocess
+import sys
+import textwrap
+
+import numpy as np
+
+from backend import variant
+
+variant.choose()
+
+from backend.material import export  # noqa: E402
+from backend.synth import procedural  # noqa: E402
+from tests.material.helpers import random_points  # noqa: E402
+from tests.material.test_meshcolors import textured  # noqa: E402
+
+
+def smooth_material(mesh, r=3):
+    m = textured(mesh, r)
+    pos = m.layout.sample_positions(mesh.vertices)
+    m.set_values("albedo", procedural.albedo_pattern(pos, 3.0))
+    m.set_values("specular", 0.2 + 0.1 * np.sin(4 * pos[:, 0]))
+    m.set_values("roughness", 0.5 + 0.2 * np.cos(4 * pos[:, 1]))
+    return m
+
+
+def test_atlas_reproduces_the_material():
+    mesh = procedural.blob(2)
+    m = smooth_material(mesh)
+    atlas = export.bake_atlas(mesh, m)
+    assert atlas.uv.shape == (mesh.n_faces, 3, 2)
+    assert atlas.uv.min() > 0 and atlas.uv.max() < 1
+    rng = np.random.default_rng(0)
+    face, b = random_points(mesh.n_faces, 4000, rng)
+    uv = np.einsum("nk,nkd->nd", b, atlas.uv[face])
+    truth = m.evaluate(face, b[:, 1], b[:, 2])
+    for name, image in (("albedo", atlas.albedo), ("specular", atlas.specular), ("roughness", atlas.roughness)):
+        got = export.sample_bilinear(image, uv).reshape(truth[name].shape)
+        assert np.abs(got - truth[name]).mean() < 2e-3, name
+        assert np.abs(got - truth[name]).max() < 0.03, name
+
+
+def test_glb_is_valid_gltf(tmp_path):
+    mesh = procedural.icosphere(1)
+    m = smooth_material(mesh, 2)
+    path = tmp_path / "result.glb"
+    export.write_glb(path, mesh, m)
+    gltf, blob = export.read_glb(path)
+    assert gltf["asset"]["version"] == "2.0"
+    prim = gltf["meshes"][0]["primitives"][0]
+    pos = gltf["accessors"][prim["attributes"]["POSITION"]]
+    assert pos["count"] == 3 * mesh.n_faces and pos["type"] == "VEC3"
+    view = gltf["bufferViews"][pos["bufferView"]]
+    xyz = np.frombuffer(blob, np.float32, 3 * pos["count"], view["byteOffset"]).reshape(-1, 3)
+    assert np.allclose(xyz[:, [0, 2, 1]] * [1, -1, 1], mesh.vertices[mesh.faces].reshape(-1, 3), atol=1e-6)
+    assert np.allclose(pos["min"], xyz.min(0)) and np.allclose(pos["max"], xyz.max(0))
+    assert all(v["byteOffset"] % 4 == 0 and v["byteOffset"] + v["byteLength"] <= len(blob)
+               for v in gltf["bufferViews"])
+    material = gltf["materials"][0]
+    assert material["pbrMetallicRoughness"]["metallicFactor"] == 0.0
+    assert "KHR_materials_specular" in material["extensions"]
+    assert [i["mimeType"] for i in gltf["images"]] == ["image/png"] * 3
+
+
+BLENDER_CHECK = textwrap.dedent("""
+    import bpy  # first: Blender's own glTF importer, in a fresh process
+    import json
+    import sys
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    bpy.ops.import_scene.gltf(filepath=sys.argv[-1])
+    objects = [o for o in bpy.data.objects if o.type == "MESH"]
+    mesh = objects[0].data
+    nodes = objects[0].active_material.node_tree.nodes
+    principled = [n for n in nodes if n.bl_idname == "ShaderNodeBsdfPrincipled"][0]
+    print("RESULT", json.dumps({
+        "objects": len(objects), "faces": len(mesh.polygons), "uv_layers": len(mesh.uv_layers),
+        "images": {i.name: list(i.size) for i in bpy.data.images},
+        "linked": [k for k in ("Base Color", "Roughness") if principled.inputs[k].is_linked],
+        "zmax": max(v.co.z for v in mesh.vertices)}))
+""")
+
+
+def test_blender_imports_the_glb(tmp_path):
+    mesh = procedural.blob(1)
+    m = smooth_material(mesh, 2)
+    path = tmp_path / "result.glb"
+    export.write_glb(path, mesh, m)
+    script = tmp_path / "check.py"
+    script.write_text(BLENDER_CHECK)
+    proc = subprocess.run([sys.executable, str(script), str(path)], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    out = json.loads(next(x for x in proc.stdout.splitlines() if x.startswith("RESULT"))[len("RESULT"):])
+    assert out["objects"] == 1 and out["faces"] == mesh.n_faces and out["uv_layers"] == 1
+    assert sorted(out["images"]) == ["base_color", "metallic_roughness", "specular"]
+    assert all(min(size) > 1 for size in out["images"].values())
+    assert out["linked"] == ["Base Color", "Roughness"]
+    assert abs(out["zmax"] - mesh.vertices[:, 2].max()) < 1e-4  # Z up again in Blender

@@ -1,0 +1,113 @@
+"""Material stages on a tiny synthetic scene: constants, textured diffuse with highlight masking,
+textured specular with the variance penalty, the environment brightness factor, the schedule."""
+
+import numpy as np
+import pytest
+
+from backend import variant
+
+variant.choose()
+
+from backend.capture.model import Environment  # noqa: E402
+from backend.material import stages  # noqa: E402
+from backend.material.model import MeshColorMaterial  # noqa: E402
+from backend.render.scene import RenderSettings, SceneRenderer  # noqa: E402
+from backend.synth import layout, procedural  # noqa: E402
+
+RES = 32
+
+
+def scene(env=False):
+    mesh = procedural.blob(3)
+    cams = layout.orbit_cameras(layout.fibonacci_sphere(6), np.zeros(3), 0.6, RES)
+    lights = [[] if env else layout.paper_lights(c, 2.0) for c in cams]
+    truth = MeshColorMaterial(mesh, 1)
+    truth.make_spatial("albedo")
+    truth.set_values("albedo", procedural.albedo_pattern(truth.layout.sample_positions(mesh.vertices), 4.0))
+    truth.set_values("specular", 0.4)
+    truth.set_values("roughness", 0.3)
+    return mesh, cams, lights, truth
+
+
+def render_truth(mesh, cams, lights, truth, env=None, pixels=None):
+    ref = SceneRenderer(mesh, truth.field, cams, lights, env, RenderSettings(spp=128, max_depth=3, integrator="path"),
+                        env_pixels=pixels, rgba=True)
+    out = [ref.render_numpy(v, seed=50 + v) for v in range(len(cams))]
+    return [o[..., :3] for o in out], [o[..., 3] for o in out]
+
+
+def albedo_rmse(material, truth):
+    f = np.arange(material.n_faces)
+    third = np.full(material.n_faces, 1 / 3)
+    a = material.evaluate(f, third, third)["albedo"]
+    b = truth.evaluate(f, third, third)["albedo"]
+    return float(np.sqrt(np.mean((a - b) ** 2)))
+
+
+def test_stages_reduce_loss_and_albedo_error():
+    mesh, cams, lights, truth = scene()
+    images, weights = render_truth(mesh, cams, lights, truth)
+    material = MeshColorMaterial(mesh, 1)
+    renderer = SceneRenderer(mesh, material.field, cams, lights, None,
+                             RenderSettings(spp=8, max_depth=3, integrator="prb"))
+    start = stages.evaluate_loss(renderer, images, weights, material)
+    const = stages.fit_constants(renderer, images, weights, material, stages.FitSettings(iterations=30, lr=0.1))
+    after_const = stages.evaluate_loss(renderer, images, weights, material)
+    rmse_const = albedo_rmse(material, truth)
+    assert after_const < 0.5 * start and const.losses[-1] < const.losses[0]
+    assert material.values("specular")[0, 0] > 0.15  # the highlights need a specular lobe
+
+    diffuse = stages.fit_diffuse(renderer, images, weights, material, stages.FitSettings(iterations=60, lr=0.1))
+    assert 0.0 < diffuse.highlight_share < 0.25
+    assert material.channels["albedo"].kind == "colors"
+    rmse_diffuse = albedo_rmse(material, truth)
+    assert rmse_diffuse < 0.7 * rmse_const
+    after_diffuse = stages.evaluate_loss(renderer, images, weights, material)
+    assert after_diffuse < after_const
+
+    spec = stages.fit_specular(renderer, images, weights, material,
+                               stages.FitSettings(iterations=30, lr=0.05, variance_weight=1.0))
+    assert material.channels["specular"].kind == "colors" and spec.losses
+    assert np.std(material.values("specular")) < 0.1  # the penalty keeps the specular smooth
+    assert stages.evaluate_loss(renderer, images, weights, material) < after_const
+
+
+def test_highlight_masks_sit_on_the_highlights():
+    mesh, cams, lights, truth = scene()
+    images, weights = render_truth(mesh, cams, lights, truth)
+    renderer = SceneRenderer(mesh, truth.field, cams, lights, None, RenderSettings(spp=32, max_depth=2))
+    masks = stages.highlight_masks(renderer, images, weights, truth, threshold=0.3)
+    for v, mask in enumerate(masks):
+        assert mask.any() and not (mask & (weights[v] == 0)).any()
+        lum = images[v].mean(-1)
+        assert lum[mask].mean() > 1.5 * lum[(weights[v] > 0) & ~mask].mean()  # the bright parts
+
+
+def test_environment_brightness_factor_is_recovered():
+    mesh, cams, lights, truth = scene(env=True)
+    sky = procedural.sky(64)
+    env = Environment("sky.exr", 1.0, 0.0)
+    images, weights = render_truth(mesh, cams, lights, truth, env, sky)
+    dim = Environment("sky.exr", 0.5, 0.0)  # the capture's strength is off by a factor of 2
+    material = MeshColorMaterial(mesh, 1)
+    for name in ("albedo", "specular", "roughness"):
+        material.set_values(name, truth.values(name), truth.channels[name].kind)
+    renderer = SceneRenderer(mesh, material.field, cams, lights, dim, RenderSettings(spp=8, max_depth=3, integrator="prb"),
+                             env_pixels=sky)
+    result = stages.fit(renderer, images, weights, material, [], stages.FitSettings(iterations=60, light_lr=0.08),
+                        light=True)
+    assert result.light_factor == pytest.approx(2.0, rel=0.1)
+    assert material.light_factor == result.light_factor
+    assert float(renderer.params[stages.ENV_SCALE][0]) == pytest.approx(0.5 * result.light_factor, rel=1e-5)
+
+
+def test_schedule_runs_constant_then_diffuse_then_specular():
+    s = stages.MaterialSchedule(constant_cycles=5, patience=1)
+    seen = []
+    losses = iter([10, 9, 8, 7, 6, 5, 4, 4, 3, 2.5, 2.5, 2.5])
+    while s.stage != "done":
+        seen.append(s.stage)
+        s.report(next(losses))
+    assert seen == ["constant"] * 5 + ["diffuse"] * 3 + ["specular"] * 3
+    s.on_remesh()
+    assert s.stage == "constant" and s.constant_cycles == s.restart_cycles
