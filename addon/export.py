@@ -3,7 +3,8 @@
 A temporary copy of the object gets a triangle-atlas UV map (two triangles per square
 cell, kept apart by a texel gap); Cycles bakes its albedo (the colour attribute through
 the material) and roughness into images, and Blender's glTF exporter writes the copy with
-a material that reads those textures. The user's scene is left as it was."""
+a Principled material that reads those textures (or, without baking, the colour
+attribute as vertex colours). The user's scene is left as it was."""
 
 import math
 from pathlib import Path
@@ -12,6 +13,7 @@ import bpy
 import numpy as np
 
 from .preview import cycles_device
+from .scene_mesh import COLOR_ATTRIBUTE, reconstruction_material
 
 
 def atlas_uvs(n_faces: int, size: int) -> np.ndarray:
@@ -49,70 +51,101 @@ def _bake(context, scene, obj, image, kind: str) -> None:
                             margin=2, margin_type="EXTEND", use_clear=True, target="IMAGE_TEXTURES")
 
 
-def _textured_material(color: bpy.types.Image, roughness: bpy.types.Image) -> bpy.types.Material:
+def _export_material(mesh, color: bpy.types.Image | None, roughness: bpy.types.Image | None) -> bpy.types.Material:
+    """A Principled BSDF the glTF exporter understands: baked textures, or the colour
+    attribute as base colour with the mean roughness."""
     mat = bpy.data.materials.new(".sft_export")
     mat.use_nodes = True
     nodes, links = mat.node_tree.nodes, mat.node_tree.links
     bsdf = next(n for n in nodes if n.type == "BSDF_PRINCIPLED")
-    tex = nodes.new("ShaderNodeTexImage")
-    tex.image = color
-    links.new(tex.outputs["Color"], bsdf.inputs["Base Color"])
-    rough = nodes.new("ShaderNodeTexImage")
-    rough.image = roughness
-    split = nodes.new("ShaderNodeSeparateColor")
-    links.new(rough.outputs["Color"], split.inputs["Color"])
-    links.new(split.outputs["Green"], bsdf.inputs["Roughness"])  # glTF reads roughness from G
+    bsdf.inputs["Metallic"].default_value = 0.0
+    if color is not None:
+        tex = nodes.new("ShaderNodeTexImage")
+        tex.image = color
+        links.new(tex.outputs["Color"], bsdf.inputs["Base Color"])
+        rough = nodes.new("ShaderNodeTexImage")
+        rough.image = roughness
+        split = nodes.new("ShaderNodeSeparateColor")
+        links.new(rough.outputs["Color"], split.inputs["Color"])
+        links.new(split.outputs["Green"], bsdf.inputs["Roughness"])  # glTF reads roughness from G
+    else:
+        attr = nodes.new("ShaderNodeVertexColor")
+        attr.layer_name = COLOR_ATTRIBUTE
+        links.new(attr.outputs["Color"], bsdf.inputs["Base Color"])
+        values = mesh.attributes.get("roughness")
+        if values is not None and len(values.data):
+            buf = np.empty(len(values.data), np.float32)
+            values.data.foreach_get("value", buf)
+            bsdf.inputs["Roughness"].default_value = float(buf.mean())
     return mat
+
+
+def _export_selected(context, obj: bpy.types.Object, path: Path) -> None:
+    """Run the glTF exporter on ``obj`` alone in the current scene, then restore the
+    scene's selection and active object."""
+    view_layer = context.view_layer
+    selected = [o for o in view_layer.objects if o.select_get()]
+    active = view_layer.objects.active
+    context.scene.collection.objects.link(obj)
+    try:
+        for o in selected:
+            o.select_set(False)
+        obj.select_set(True)
+        view_layer.objects.active = obj
+        bpy.ops.export_scene.gltf(filepath=str(path), export_format="GLB", use_selection=True)
+    finally:
+        context.scene.collection.objects.unlink(obj)
+        for o in selected:
+            o.select_set(True)
+        view_layer.objects.active = active
 
 
 def export_gltf(context, obj: bpy.types.Object, path: Path, bake: bool = True, size: int = 0,
                 samples: int = 1, device: str = "AUTO") -> dict:
     """Write ``obj`` as binary glTF; returns what was written."""
-    scene = bpy.data.scenes.new(".sft_export")
+    scene = bpy.data.scenes.new(".sft_export")  # for baking with Cycles
     mesh = obj.data.copy()
-    copy = bpy.data.objects.new(obj.name, mesh)
+    copy = bpy.data.objects.new(".sft_export", mesh)
     copy.matrix_world = obj.matrix_world
     scene.collection.objects.link(copy)
-    made = {"images": [], "materials": []}
+    made_images, made_materials = [], []
     info = {"path": str(path), "faces": len(mesh.polygons), "texture_size": 0}
+    name = obj.name
     try:
+        color = rough = None
         if bake:
             size = size or texture_size(len(mesh.polygons))
             uv = mesh.uv_layers.new(name="UVMap")
             uv.data.foreach_set("uv", atlas_uvs(len(mesh.polygons), size).ravel())
-            baking = mesh.materials[0].copy() if mesh.materials else None
-            if baking is None:
-                from .scene_mesh import reconstruction_material
-                baking = reconstruction_material().copy()
-            made["materials"].append(baking)
+            baking = reconstruction_material().copy()
+            made_materials.append(baking)
             mesh.materials.clear()
             mesh.materials.append(baking)
             scene.render.engine = "CYCLES"
             scene.cycles.samples = samples
             scene.cycles.device = cycles_device(context, device)
-            color = bpy.data.images.new(f"{obj.name}_basecolor", size, size, alpha=False)
-            rough = bpy.data.images.new(f"{obj.name}_roughness", size, size, alpha=False)
+            color = bpy.data.images.new(f"{name}_basecolor", size, size, alpha=False)
+            rough = bpy.data.images.new(f"{name}_roughness", size, size, alpha=False)
             rough.colorspace_settings.name = "Non-Color"
-            made["images"] += [color, rough]
+            made_images += [color, rough]
             _bake(context, scene, copy, color, "DIFFUSE")
             _bake(context, scene, copy, rough, "ROUGHNESS")
-            textured = _textured_material(color, rough)
-            made["materials"].append(textured)
-            mesh.materials.clear()
-            mesh.materials.append(textured)
+            for attr in list(mesh.color_attributes):  # glTF multiplies COLOR_0 into the base colour
+                mesh.color_attributes.remove(attr)
             info["texture_size"] = size
+        made_materials.append(_export_material(mesh, color, rough))
+        mesh.materials.clear()
+        mesh.materials.append(made_materials[-1])
         path.parent.mkdir(parents=True, exist_ok=True)
-        override = dict(scene=scene, view_layer=scene.view_layers[0], active_object=copy, object=copy,
-                        selected_objects=[copy], selected_editable_objects=[copy])
-        with context.temp_override(**override):
-            bpy.ops.export_scene.gltf(filepath=str(path), export_format="GLB", use_selection=True,
-                                      export_apply=True)
+        obj.name, copy.name = ".sft_exporting", name  # the glTF node keeps the object's name
+        _export_selected(context, copy, path)
         return info
     finally:
         bpy.data.scenes.remove(scene)
         bpy.data.objects.remove(copy)
+        obj.name = name
         bpy.data.meshes.remove(mesh)
-        for mat in made["materials"]:
+        for mat in made_materials:
             bpy.data.materials.remove(mat)
-        for image in made["images"]:
+        for image in made_images:
             bpy.data.images.remove(image)

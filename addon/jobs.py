@@ -12,7 +12,7 @@ from pathlib import Path
 
 import bpy
 
-from . import scene_mesh
+from . import interpreter, scene_mesh
 from .errors import AddonInputError
 from .ply import read_display_mesh
 from .process import BackendProcess
@@ -24,11 +24,12 @@ ACTIVE: dict[str, "Job"] = {}  # kind ("reconstruct", "solve") -> the job the pa
 class Job:
     """A backend command running in the background, with its :class:`RunState`."""
 
-    def __init__(self, python: str, args: list[str], run_dir: Path | None = None, kind: str = "job"):
+    def __init__(self, python: str, args: list[str], run_dir: Path | None = None, kind: str = "job",
+                 root: Path = interpreter.PACKAGE_DIR):
         self.kind = kind
         self.state = RunState()
         self.run_dir = run_dir
-        self.process = BackendProcess(python, args, run_dir)
+        self.process = BackendProcess(python, args, run_dir, root)
         ACTIVE[kind] = self
 
     @property
@@ -66,11 +67,12 @@ class Job:
 class ReconstructJob(Job):
     """``python -m backend reconstruct``; the newest snapshot streams into the scene."""
 
-    def __init__(self, python: str, args: list[str], run_dir: Path, object_name: str):
+    def __init__(self, python: str, args: list[str], run_dir: Path, object_name: str,
+                 root: Path = interpreter.PACKAGE_DIR):
         self.object_name = object_name
         self.applied: str | None = None  # the snapshot mesh now in the scene
         self.apply_seconds: list[float] = []  # main-thread cost of each update
-        super().__init__(python, args, run_dir, kind="reconstruct")
+        super().__init__(python, args, run_dir, "reconstruct", root)
 
     def on_events(self, context, events):
         if any(e.get("event") == "snapshot" for e in events):

@@ -69,12 +69,10 @@ def render(context, obj: bpy.types.Object, info: CaptureInfo, frame_index: int, 
         temporary.append(camera)
         scene.collection.objects.link(camera)
         scene.camera = camera
-        scene.world = bpy.data.worlds.new(".sft_preview")
-        if env:
+        if env:  # else no world: black
+            scene.world = bpy.data.worlds.new(".sft_preview")
             image = world.load_environment_image(env["path"])
             world.set_environment(scene.world, image, env["strength"], env["rotation_z_deg"])
-        else:
-            scene.world.color = (0.0, 0.0, 0.0)
         for light in frame.lights if use_lights else []:
             temporary.append(_point_light(light))
             scene.collection.objects.link(temporary[-1])

@@ -1,10 +1,9 @@
 """Writing display meshes into the "Reconstruction" object with ``foreach_set``.
 
 Colours are a point-domain colour attribute ``albedo`` (linear); ``specular`` and
-``roughness`` are float point attributes. The material reads them, so Cycles previews and
-the glTF exporter see the reconstructed material (the backend's Lambert + GGX model:
-GGX alpha = roughness^2 as in the Principled BSDF; the grey specular reflectance maps to
-Specular IOR Level = specular / 0.08, whose normal-incidence reflectance is 0.08 * level)."""
+``roughness`` are float point attributes. The material reads them as the backend's BSDF:
+albedo / pi plus specular * D G / (4 cos cos) with GGX alpha = roughness^2, which is a
+Diffuse BSDF added to a Glossy BSDF (GGX, no Fresnel) in Cycles."""
 
 import bpy
 import numpy as np
@@ -17,31 +16,32 @@ COLOR_ATTRIBUTE = "albedo"
 
 
 def reconstruction_material() -> bpy.types.Material:
+    """Diffuse (albedo) + GGX glossy (grey specular, roughness) added: the backend's BSDF."""
     mat = bpy.data.materials.get(MATERIAL_NAME)
     if mat is not None:
         return mat
     mat = bpy.data.materials.new(MATERIAL_NAME)
     mat.use_nodes = True
     nodes, links = mat.node_tree.nodes, mat.node_tree.links
-    bsdf = next(n for n in nodes if n.type == "BSDF_PRINCIPLED")
-    color = nodes.new("ShaderNodeVertexColor")
-    color.layer_name = COLOR_ATTRIBUTE
-    color.location = (-500, 300)
-    links.new(color.outputs["Color"], bsdf.inputs["Base Color"])
-    rough = nodes.new("ShaderNodeAttribute")
-    rough.attribute_name = "roughness"
-    rough.location = (-500, 0)
-    links.new(rough.outputs["Fac"], bsdf.inputs["Roughness"])
-    spec = nodes.new("ShaderNodeAttribute")
-    spec.attribute_name = "specular"
-    spec.location = (-700, -250)
-    scale = nodes.new("ShaderNodeMath")
-    scale.operation = "MULTIPLY"
-    scale.inputs[1].default_value = 1.0 / 0.08
-    scale.location = (-500, -250)
-    links.new(spec.outputs["Fac"], scale.inputs[0])
-    links.new(scale.outputs["Value"], bsdf.inputs["Specular IOR Level"])
-    bsdf.inputs["IOR"].default_value = 1.5
+    nodes.clear()
+    albedo = nodes.new("ShaderNodeVertexColor")
+    albedo.layer_name = COLOR_ATTRIBUTE
+    specular, roughness = nodes.new("ShaderNodeAttribute"), nodes.new("ShaderNodeAttribute")
+    specular.attribute_name, roughness.attribute_name = "specular", "roughness"
+    diffuse = nodes.new("ShaderNodeBsdfDiffuse")
+    glossy = nodes.new("ShaderNodeBsdfGlossy")
+    glossy.distribution = "GGX"
+    add = nodes.new("ShaderNodeAddShader")
+    output = nodes.new("ShaderNodeOutputMaterial")
+    links.new(albedo.outputs["Color"], diffuse.inputs["Color"])
+    links.new(specular.outputs["Fac"], glossy.inputs["Color"])
+    links.new(roughness.outputs["Fac"], glossy.inputs["Roughness"])
+    links.new(diffuse.outputs["BSDF"], add.inputs[0])
+    links.new(glossy.outputs["BSDF"], add.inputs[1])
+    links.new(add.outputs["Shader"], output.inputs["Surface"])
+    for node, xy in ((albedo, (-400, 200)), (specular, (-400, -50)), (roughness, (-400, -250)),
+                     (diffuse, (-150, 150)), (glossy, (-150, -100)), (add, (100, 0)), (output, (300, 0))):
+        node.location = xy
     return mat
 
 
@@ -60,10 +60,11 @@ def reconstruction_object(context, name: str = OBJECT_NAME) -> bpy.types.Object:
 def _same_topology(mesh: bpy.types.Mesh, dm: DisplayMesh) -> bool:
     if len(mesh.vertices) != len(dm.vertices) or len(mesh.polygons) != len(dm.faces):
         return False
-    if len(mesh.loops) != dm.faces.size:
+    corner_vert = mesh.attributes.get(".corner_vert")
+    if len(mesh.loops) != dm.faces.size or corner_vert is None:
         return False
     corners = np.empty(len(mesh.loops), np.int32)
-    mesh.loops.foreach_get("vertex_index", corners)
+    corner_vert.data.foreach_get("value", corners)
     return bool(np.array_equal(corners, dm.faces.ravel()))
 
 
@@ -78,19 +79,18 @@ def _point_attribute(mesh, name: str, kind: str):
 def apply_display_mesh(obj: bpy.types.Object, dm: DisplayMesh) -> None:
     """Replace the object's geometry and material attributes; keeps its materials.
 
-    When the triangles are unchanged only positions and attributes are written."""
+    Arrays go through the attribute API (``position``, ``.corner_vert``), which copies
+    them in bulk; when the triangles are unchanged only values are written."""
     mesh = obj.data
-    if not _same_topology(mesh, dm):
+    topology_changed = not _same_topology(mesh, dm)
+    if topology_changed:
         mesh.clear_geometry()
         mesh.vertices.add(len(dm.vertices))
         mesh.loops.add(dm.faces.size)
         mesh.polygons.add(len(dm.faces))
         mesh.polygons.foreach_set("loop_start", np.arange(0, dm.faces.size, 3, dtype=np.int32))
-        mesh.loops.foreach_set("vertex_index", dm.faces.ravel())
-        topology_changed = True
-    else:
-        topology_changed = False
-    mesh.vertices.foreach_set("co", np.ascontiguousarray(dm.vertices, np.float32).ravel())
+        mesh.attributes[".corner_vert"].data.foreach_set("value", np.ascontiguousarray(dm.faces).ravel())
+    mesh.attributes["position"].data.foreach_set("vector", np.ascontiguousarray(dm.vertices, np.float32).ravel())
     if dm.colors is not None:
         color = _point_attribute(mesh, COLOR_ATTRIBUTE, "FLOAT_COLOR")
         rgba = np.ones((len(dm.colors), 4), np.float32)

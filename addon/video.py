@@ -30,7 +30,7 @@ def video_info(path: str | Path) -> tuple[int, int, int, float]:
 
 
 def render_frames(path: str | Path, frames: list[int], out_dir: str | Path) -> list[Path]:
-    """Write the 0-based ``frames`` of a video as ``out_dir/NNNNNN.png`` (N = video frame)."""
+    """Write the 0-based ``frames`` of a video as PNGs in ``out_dir``; returns their paths."""
     total, width, height, fps = video_info(path)
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -50,13 +50,12 @@ def render_frames(path: str | Path, frames: list[int], out_dir: str | Path) -> l
         scene.view_settings.look = "None"
         scene.view_settings.exposure = 0.0
         scene.view_settings.gamma = 1.0
-        scene.frame_start, scene.frame_end = 1, total
+        render.filepath = str(out_dir / "######")
         written = []
-        for index in frames:
-            scene.frame_current = index + 1
-            target = out_dir / f"{index:06d}.png"
-            render.filepath = str(target)
-            bpy.ops.render.render(write_still=True, scene=scene.name)
+        for index in frames:  # a one-frame animation: still renders ignore the scene's frame
+            scene.frame_start = scene.frame_end = index + 1
+            target = out_dir / f"{index + 1:06d}.png"
+            bpy.ops.render.render(animation=True, scene=scene.name)
             require(target.is_file(), path, f"frame {index} could not be decoded", "re-encode the video")
             written.append(target)
         return written

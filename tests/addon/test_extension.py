@@ -1,0 +1,80 @@
+"""The extension package: Blender's validator, build, install into a temporary repository,
+enable, sidebar panels, preferences and the backend check."""
+
+from __future__ import annotations
+
+import ast
+import zipfile
+
+import bpy
+
+from .conftest import REPO, VALID_TAGS, blender_ext
+
+
+def test_manifest_passes_blenders_validator():
+    proc = blender_ext("validate", "--valid-tags", str(VALID_TAGS), str(REPO))
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    assert "Success" in proc.stdout
+
+
+def test_zip_holds_addon_and_backend_only(built_zip):
+    names = zipfile.ZipFile(built_zip).namelist()
+    assert "blender_manifest.toml" in names and "__init__.py" in names
+    assert "addon/operators/reconstruct.py" in names and "addon/ui/panels.py" in names
+    assert "backend/__main__.py" in names and "backend/commands/check.py" in names
+    for excluded in (".venv/", "tests/", "docs/", "scripts/", ".git/", "runs/", "bench/"):
+        assert not any(n.startswith(excluded) for n in names), excluded
+    assert not any("__pycache__" in n or n.endswith((".pyc", ".blend", ".zip")) for n in names)
+    proc = blender_ext("validate", "--valid-tags", str(VALID_TAGS), str(built_zip))
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+
+
+def test_installed_and_enabled(extension):
+    assert extension.__file__.endswith("shape_from_tracing/__init__.py")
+    assert "sft_tests" in extension.__name__
+    assert hasattr(bpy.types.Scene, "sft")
+    for op in ("import_video", "import_masks", "import_environment", "import_cameras", "solve_cameras",
+               "reconstruct", "reconstruct_cancel", "relit_preview", "export_gltf", "check_backend"):
+        assert hasattr(bpy.ops.sft, op), op
+    panels = {name: getattr(bpy.types, name) for name in
+              ("SFT_PT_capture", "SFT_PT_cameras", "SFT_PT_reconstruct", "SFT_PT_preview")}
+    assert {p.bl_label for p in panels.values()} == {"Capture", "Cameras", "Reconstruct", "Preview"}
+    assert all(p.bl_category == "Shape from Tracing" and p.bl_space_type == "VIEW_3D" for p in panels.values())
+
+
+def test_addon_never_imports_heavy_libraries():
+    for path in (REPO / "addon").rglob("*.py"):
+        imported = set()
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.Import):
+                imported |= {a.name.split(".")[0] for a in node.names}
+            elif isinstance(node, ast.ImportFrom) and node.level == 0:
+                imported.add(node.module.split(".")[0])
+        assert not imported & {"mitsuba", "drjit", "pymeshlab", "pycolmap", "backend"}, path
+
+
+def test_default_preset_calibration_shown(extension, context):
+    from importlib import import_module
+
+    presets = import_module(f"{extension.__name__}.addon.presets")
+    calib = presets.calibration()
+    expected = "not calibrated" if not (REPO / "backend" / "presets.json").is_file() else None
+    text = presets.describe(context.scene.sft.preset, calib)
+    assert context.scene.sft.preset == "balanced"
+    assert text == expected if expected else text
+
+
+def test_check_backend_button(extension, context):
+    prefs = context.preferences.addons[extension.__name__].preferences
+    assert bpy.ops.sft.check_backend() == {"FINISHED"}
+    assert prefs.check_result.startswith("OK") and "mitsuba" in prefs.check_result
+    good = prefs.python
+    prefs.python = "/nonexistent/python"
+    try:
+        bpy.ops.sft.check_backend()
+        raise AssertionError("expected an error report")
+    except RuntimeError as err:
+        assert "interpreter not found" in str(err)
+    finally:
+        prefs.python = good
+    assert "interpreter not found" in prefs.check_result
