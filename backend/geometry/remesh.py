@@ -1,0 +1,117 @@
+"""Re-meshing by ray casting and screened Poisson reconstruction.
+
+The current surface is sampled where the input cameras see it (first hits of one ray per
+pixel, through Mitsuba's ``scene.ray_intersect``). Hits on back faces (the ray enters the
+surface from inside: inverted or self-intersecting sheets) and hits that project outside a
+mask in any view that sees them (geometry the silhouettes forbid, such as a membrane over a
+hole) are dropped. Screened Poisson reconstruction of the remaining oriented points gives a
+closed manifold without interior or self-intersecting triangles, whose genus may differ
+from the input's; it is then simplified to the face target."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..capture.model import Camera
+from .mesh import Mesh
+from .poisson import depth_for_resolution, poisson
+from .simplify import edge_length_for_faces, simplify
+
+
+@dataclass
+class RemeshConfig:
+    mask_tolerance_px: float = 1.5  # samples further outside a mask than this are dropped
+    cells_per_edge: float = 1.5  # Poisson octree cells per target edge length
+    max_depth: int = 10
+    point_weight: float = 4.0
+
+
+@dataclass
+class SurfaceSamples:
+    points: np.ndarray  # (N, 3)
+    normals: np.ndarray  # (N, 3), outward
+    rays: int  # rays cast
+    back_faces: int  # hits dropped because the ray met a back face
+    outside_masks: int  # hits dropped by the masks
+
+
+def pixel_rays(camera: Camera) -> tuple[np.ndarray, np.ndarray]:
+    """One ray per pixel centre: origins (N, 3) and unit directions (N, 3), rows top to bottom."""
+    v, u = np.mgrid[0:camera.height, 0:camera.width] + 0.5
+    d = np.stack([(u - camera.cx) / camera.fx, -(v - camera.cy) / camera.fy, -np.ones_like(u)], -1).reshape(-1, 3)
+    d = d @ camera.camera_to_world[:3, :3].T
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    return np.broadcast_to(camera.centre, d.shape).copy(), d
+
+
+def first_hits(mesh: Mesh, origins: np.ndarray, directions: np.ndarray):
+    """Mitsuba ray casting: (hit mask, positions, geometric normals by winding)."""
+    import mitsuba as mi
+
+    from ..render.scene import mitsuba_mesh
+
+    scene = mi.load_dict({"type": "scene", "shape": mitsuba_mesh(mesh, mi.load_dict({"type": "diffuse"}))})
+    ray = mi.Ray3f(mi.Point3f(*[mi.Float(origins[:, i].astype(np.float32)) for i in range(3)]),
+                   mi.Vector3f(*[mi.Float(directions[:, i].astype(np.float32)) for i in range(3)]))
+    si = scene.ray_intersect(ray)
+    valid = np.array(si.is_valid(), bool)
+    p = np.stack([np.array(c) for c in (si.p.x, si.p.y, si.p.z)], -1).astype(np.float64)
+    n = np.stack([np.array(c) for c in (si.n.x, si.n.y, si.n.z)], -1).astype(np.float64)
+    return valid, p, n
+
+
+def outside_distance(mask: np.ndarray) -> np.ndarray:
+    """Per pixel, the distance in pixels to the nearest object pixel (0 on the object)."""
+    from scipy import ndimage
+
+    return ndimage.distance_transform_edt(mask <= 0.5)
+
+
+def sample_surface(mesh: Mesh, cameras: list[Camera], masks: list[np.ndarray] | None,
+                   config: RemeshConfig | None = None) -> SurfaceSamples:
+    """Oriented points on the visible, silhouette-consistent part of ``mesh``."""
+    config = config or RemeshConfig()
+    rays = [pixel_rays(c) for c in cameras]
+    o = np.concatenate([r[0] for r in rays])
+    d = np.concatenate([r[1] for r in rays])
+    valid, p, n = first_hits(mesh, o, d)
+    front = np.einsum("ij,ij->i", n, d) < 0
+    back_faces = int(np.sum(valid & ~front))
+    keep = valid & front
+    p, n = p[keep], n[keep]
+    dropped = 0
+    if masks is not None:
+        ok = np.ones(len(p), bool)
+        for cam, mask in zip(cameras, masks):
+            dist = outside_distance(mask)
+            uv, depth = cam.project(p)
+            h, w = mask.shape
+            px = np.floor(uv).astype(np.int64)
+            inframe = (depth > 0) & (px[:, 0] >= 0) & (px[:, 0] < w) & (px[:, 1] >= 0) & (px[:, 1] < h)
+            far = np.zeros(len(p), bool)
+            far[inframe] = dist[px[inframe, 1], px[inframe, 0]] > config.mask_tolerance_px
+            ok &= ~far
+        dropped = int(np.sum(~ok))
+        p, n = p[ok], n[ok]
+    return SurfaceSamples(p, n, len(o), back_faces, dropped)
+
+
+def poisson_from_samples(samples: SurfaceSamples, mesh: Mesh, target_faces: int,
+                         config: RemeshConfig | None = None) -> Mesh:
+    """Screened Poisson surface of the samples at the resolution of ``target_faces`` faces
+    over ``mesh``'s area, simplified to at most ``target_faces``."""
+    config = config or RemeshConfig()
+    lo, hi = mesh.bounds()
+    spacing = edge_length_for_faces(mesh, target_faces) / config.cells_per_edge
+    depth = depth_for_resolution(float((hi - lo).max()), spacing, hi=config.max_depth)
+    rebuilt = poisson(samples.points, samples.normals, depth=depth, point_weight=config.point_weight)
+    return simplify(rebuilt, target_faces)
+
+
+def remesh(mesh: Mesh, cameras: list[Camera], masks: list[np.ndarray] | None, target_faces: int,
+           config: RemeshConfig | None = None) -> tuple[Mesh, SurfaceSamples]:
+    """Rebuild ``mesh`` from its ray-cast samples; at most ``target_faces`` faces."""
+    samples = sample_surface(mesh, cameras, masks, config)
+    return poisson_from_samples(samples, mesh, target_faces, config), samples
