@@ -55,7 +55,8 @@ def _export_material(mesh, color: bpy.types.Image | None, roughness: bpy.types.I
     """A Principled BSDF the glTF exporter understands: baked textures, or the colour
     attribute as base colour with the mean roughness."""
     mat = bpy.data.materials.new(".sft_export")
-    mat.use_nodes = True
+    if bpy.app.version < (5, 0, 0):  # always on (and deprecated) from Blender 5
+        mat.use_nodes = True
     nodes, links = mat.node_tree.nodes, mat.node_tree.links
     bsdf = next(n for n in nodes if n.type == "BSDF_PRINCIPLED")
     bsdf.inputs["Metallic"].default_value = 0.0

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -71,6 +72,30 @@ def run(python: str, args: list[str], root: Path = PACKAGE_DIR, timeout: float =
     else:
         message = " | ".join(lines[-4:])
     return proc.returncode, message
+
+
+_OPTIONS: dict[tuple, frozenset[str]] = {}
+
+
+def command_options(python: str, name: str, root: Path = PACKAGE_DIR) -> frozenset[str]:
+    """The ``--options`` a backend command lists in its ``--help`` (cached per version of
+    its source file); empty when the command is missing or does not answer."""
+    source = Path(root) / "backend" / "commands" / f"{name.replace('-', '_')}.py"
+    try:
+        key = (python, str(source), source.stat().st_mtime_ns)
+    except OSError:
+        return frozenset()
+    if key not in _OPTIONS:
+        try:
+            proc = subprocess.run(command(python, name, "--help"), capture_output=True, text=True,
+                                  timeout=60, **popen_kwargs(root))
+            found = frozenset()
+            if proc.returncode == 0:
+                found = frozenset(re.findall(r"(?<![\w-])--[a-z][a-z0-9-]*", proc.stdout))
+        except (OSError, subprocess.TimeoutExpired):
+            found = frozenset()
+        _OPTIONS[key] = found
+    return _OPTIONS[key]
 
 
 @dataclass

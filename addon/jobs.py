@@ -121,8 +121,36 @@ def tag_redraw(context) -> None:
                 area.tag_redraw()
 
 
-def stop_all() -> None:
-    """Blender is quitting or the add-on is disabled: end every backend process."""
+def _drain() -> float | None:
+    """Timer: keep reading stopped jobs' pipes until their processes exit."""
+    running = [job for job in ACTIVE.values() if job.running]
+    for job in running:
+        job.process.poll()
+    return 0.2 if running else None
+
+
+@bpy.app.handlers.persistent
+def stop_on_load(*_args) -> None:
+    """Another file is opening (its modal operators end): stop running jobs cleanly and
+    forget finished ones (their status belongs to the old file)."""
+    for kind in [kind for kind, job in ACTIVE.items() if not job.running]:
+        del ACTIVE[kind]
+    for job in ACTIVE.values():
+        job.stop()
+    if ACTIVE:
+        bpy.app.timers.register(_drain, first_interval=0.2)
+
+
+def register() -> None:
+    bpy.app.handlers.load_pre.append(stop_on_load)
+
+
+def unregister() -> None:
+    """The add-on is disabled or Blender quits: end every backend process now."""
+    if stop_on_load in bpy.app.handlers.load_pre:
+        bpy.app.handlers.load_pre.remove(stop_on_load)
+    if bpy.app.timers.is_registered(_drain):
+        bpy.app.timers.unregister(_drain)
     for job in ACTIVE.values():
         if job.running:
             job.process.kill()

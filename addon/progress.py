@@ -63,7 +63,7 @@ class RunState:
         elif kind == "error":
             self.status, self.message = FAILED, str(event.get("message", "the backend failed"))
         elif kind == "cancelled":
-            self.status, self.message = CANCELLED, "cancelled; the last snapshot is kept"
+            self.status, self.message = CANCELLED, "the last snapshot is kept"
         elif kind == "done":
             self.status, self.fraction, self.done = DONE, 1.0, dict(event)
             self._eta_s = 0.0
@@ -72,7 +72,7 @@ class RunState:
         """Settle the status once the process exited (a crash emits no event)."""
         if returncode == 130 or self.status == CANCELLED:
             self.status = CANCELLED
-            self.message = self.message or "cancelled; the last snapshot is kept"
+            self.message = self.message or "the last snapshot is kept"
         elif returncode == 0 and self.status != FAILED:
             self.status = DONE
             self.fraction = 1.0
@@ -110,7 +110,7 @@ class RunState:
     def headline(self) -> str:
         """One line for the panel: stage, iteration and loss."""
         if not self.active:
-            return f"{self.status}: {self.message}" if self.message else self.status
+            return f"{self.status.capitalize()}: {self.message}" if self.message else self.status.capitalize()
         parts = [self.stage or self.status]
         if self.level is not None:
             parts[0] += f" (level {self.level})"

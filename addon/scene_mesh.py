@@ -21,7 +21,8 @@ def reconstruction_material() -> bpy.types.Material:
     if mat is not None:
         return mat
     mat = bpy.data.materials.new(MATERIAL_NAME)
-    mat.use_nodes = True
+    if bpy.app.version < (5, 0, 0):  # always on (and deprecated) from Blender 5
+        mat.use_nodes = True
     nodes, links = mat.node_tree.nodes, mat.node_tree.links
     nodes.clear()
     albedo = nodes.new("ShaderNodeVertexColor")

@@ -34,7 +34,8 @@ def load_environment_image(path: str | Path) -> bpy.types.Image:
 def set_environment(world: bpy.types.World, image: bpy.types.Image, strength: float,
                     rotation_z_deg: float) -> None:
     """Rebuild ``world``'s nodes as the convention's chain."""
-    world.use_nodes = True
+    if bpy.app.version < (5, 0, 0):  # always on (and deprecated) from Blender 5
+        world.use_nodes = True
     nodes, links = world.node_tree.nodes, world.node_tree.links
     nodes.clear()
     coords = nodes.new("ShaderNodeTexCoord")

@@ -71,6 +71,7 @@ def load_addon(python: str | None):
 def run(args: argparse.Namespace) -> int:
     import bpy
 
+    bpy.ops.wm.read_homefile(use_empty=True)  # start from an empty scene, not the default cube
     load_addon(args.python)
     from shape_from_tracing.addon import jobs
     from shape_from_tracing.addon.video import VIDEO_SUFFIXES

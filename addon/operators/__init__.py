@@ -3,6 +3,7 @@ bad input (``report({'ERROR'}, ...)``), leaving the scene unchanged."""
 
 import bpy
 
+from .. import jobs
 from . import backend, cameras, capture, export, preview, reconstruct
 
 CLASSES = (*backend.CLASSES, *capture.CLASSES, *cameras.CLASSES, *reconstruct.CLASSES,
@@ -12,11 +13,10 @@ CLASSES = (*backend.CLASSES, *capture.CLASSES, *cameras.CLASSES, *reconstruct.CL
 def register():
     for cls in CLASSES:
         bpy.utils.register_class(cls)
+    jobs.register()
 
 
 def unregister():
-    from .. import jobs
-
-    jobs.stop_all()
+    jobs.unregister()
     for cls in reversed(CLASSES):
         bpy.utils.unregister_class(cls)

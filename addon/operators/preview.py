@@ -3,7 +3,7 @@
 import bpy
 from bpy.props import StringProperty
 
-from .. import capture_file, preview, scene_mesh
+from .. import capture_file, preview, scene_mesh, world
 from ..errors import AddonInputError, require
 from .common import abspath, capture_dir, fail
 
@@ -38,7 +38,7 @@ class SFT_OT_relit_preview(bpy.types.Operator):
             else:
                 env = info.environment
             if env:
-                preview.world.load_environment_image(env["path"])  # validate before rendering
+                world.load_environment_image(env["path"])  # validate before rendering
             base = abspath(sft.run_dir) if sft.run_dir else info.root
             out = abspath(self.filepath) if self.filepath else base / "preview" / f"{frame.name}.png"
             rendered = out.with_name(f"{out.stem}_render.png")

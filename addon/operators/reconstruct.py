@@ -3,6 +3,7 @@ snapshot streams into the "Reconstruction" object."""
 
 import shlex
 import time
+from pathlib import Path
 
 import bpy
 from bpy.props import StringProperty
@@ -10,8 +11,17 @@ from bpy.props import StringProperty
 from .. import interpreter, jobs, progress, scene_mesh
 from ..errors import AddonInputError, require
 from ..preferences import backend_python
-from .common import abspath, capture_dir, fail
+from .common import abspath, capture_dir
 from .modal import JobModal
+
+
+def reconstruct_args(capture: Path, run: Path, preset: str | None, extra: str = "") -> list[str]:
+    """The backend command line (docs/protocol.md): ``reconstruct CAPTURE --out RUN ...``."""
+    try:
+        options = shlex.split(extra)
+    except ValueError as err:
+        raise AddonInputError(None, f"extra arguments: {err}", "fix the quoting") from err
+    return ["reconstruct", str(capture), "--out", str(run), *(["--preset", preset] if preset else []), *options]
 
 
 class SFT_OT_reconstruct(JobModal, bpy.types.Operator):
@@ -40,15 +50,15 @@ class SFT_OT_reconstruct(JobModal, bpy.types.Operator):
         run = abspath(self.run_dir) if self.run_dir else capture / "runs" / time.strftime("%Y%m%d-%H%M%S")
         require(not (run.is_dir() and any(run.iterdir())), run, "run folder is not empty",
                 "choose a new run folder")
+        python = backend_python(context)
+        preset = sft.preset if "--preset" in interpreter.command_options(python, "reconstruct") else None
+        args = reconstruct_args(capture, run, preset, sft.extra_args)
+        if preset is None:
+            self.report({"WARNING"}, "the backend's reconstruct has no --preset option: it runs with its defaults")
         try:
-            extra = shlex.split(sft.extra_args)
-        except ValueError as err:
-            raise AddonInputError(None, f"extra arguments: {err}", "fix the quoting") from err
-        args = ["reconstruct", str(capture), "--out", str(run), "--preset", sft.preset, *extra]
-        try:
-            job = jobs.ReconstructJob(backend_python(context), args, run, self.object_name)
+            job = jobs.ReconstructJob(python, args, run, self.object_name)
         except OSError as err:
-            raise AddonInputError(backend_python(context), f"cannot start the backend ({err.strerror})",
+            raise AddonInputError(python, f"cannot start the backend ({err.strerror})",
                                   "choose the backend Python in the add-on preferences") from err
         sft.run_dir = str(run)
         return job

@@ -17,10 +17,6 @@ from backend.synth.layout import look_at
 from .media import centroid, render, spot_env
 
 
-def _camera_dict(cam: Camera) -> dict:
-    return cam.to_json()
-
-
 @pytest.mark.parametrize("rotation", [0.0, 40.0, -110.0])
 def test_environment_spot_appears_where_formula_says(context, addon, tmp_path, rotation):
     u, v = 0.3, 0.35
@@ -31,10 +27,10 @@ def test_environment_spot_appears_where_formula_says(context, addon, tmp_path, r
     target = d + 0.15 * np.cross(d, [0, 0, 1]) / np.linalg.norm(np.cross(d, [0, 0, 1]))
     cam = Camera(64, 64, 60.0, 60.0, 32.0, 32.0, look_at([0, 0, 0], target))
     scene = context.scene
-    obj = addon.scene_cameras.camera_object("probe", blender_camera(_camera_dict(cam)))
+    obj = addon.scene_cameras.camera_object("probe", blender_camera(cam.to_json()))
     scene.collection.objects.link(obj)
     scene.camera = obj
-    addon.scene_cameras.configure_render(scene, blender_camera(_camera_dict(cam)))
+    addon.scene_cameras.configure_render(scene, blender_camera(cam.to_json()))
     img = render(scene, tmp_path / "probe.exr", samples=8)
     lum = img[..., :3].mean(-1)
     assert lum.max() > 1.0, "the spot is not in view"
@@ -53,13 +49,12 @@ def test_world_point_lands_on_projected_pixel(context, addon, tmp_path, cx, cy, 
     bpy.ops.mesh.primitive_uv_sphere_add(radius=0.02, location=point.tolist(), segments=16, ring_count=8)
     ball = context.active_object
     mat = bpy.data.materials.new("glow")
-    mat.use_nodes = True
     nodes = mat.node_tree.nodes
     nodes.remove(nodes["Principled BSDF"])
     emit = nodes.new("ShaderNodeEmission")
     mat.node_tree.links.new(emit.outputs[0], nodes["Material Output"].inputs["Surface"])
     ball.data.materials.append(mat)
-    bc = blender_camera(_camera_dict(cam))
+    bc = blender_camera(cam.to_json())
     obj = addon.scene_cameras.camera_object("probe", bc)
     scene.collection.objects.link(obj)
     scene.camera = obj

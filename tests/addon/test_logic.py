@@ -197,6 +197,7 @@ def test_run_state_follows_events():
     assert state.snapshot == "snapshots/000010.ply" and state.snapshots == 1
     state.update({"event": "done", "result": "result.ply", "report": "report.json", "metrics": {"f1": 0.9}})
     assert state.status == progress.DONE and not state.active and state.fraction == 1.0
+    assert state.headline() == "Done"
 
 
 def test_run_state_eta_without_backend_estimate():
@@ -209,6 +210,7 @@ def test_run_state_settles_crash_and_cancel():
     crashed = progress.RunState()
     crashed.finish(1, "Traceback ... | RuntimeError: boom")
     assert crashed.status == progress.FAILED and "RuntimeError: boom" in crashed.message
+    assert crashed.headline().startswith("Failed: the backend exited with code 1; log: Traceback")
     cancelled = progress.RunState()
     cancelled.finish(130)
     assert cancelled.status == progress.CANCELLED

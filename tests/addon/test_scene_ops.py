@@ -266,6 +266,14 @@ def test_relit_preview_under_other_hdr(context, addon, env_capture, tmp_path):
     assert render[..., 0].mean() > 100 and render[..., 1:].max() <= 2  # lit by red light only
 
 
+def test_cycles_device_choice(context, addon):
+    prefs = context.preferences.addons["cycles"].preferences
+    has_gpu = prefs.compute_device_type != "NONE" and any(d.type != "CPU" for d in prefs.get_devices_for_type(
+        prefs.compute_device_type))
+    assert addon.preview.cycles_device(context, "CPU") == "CPU"
+    assert addon.preview.cycles_device(context, "AUTO") == ("GPU" if has_gpu else "CPU")
+
+
 def test_relit_preview_bad_input(context, addon, env_capture, tmp_path):
     expect_error(bpy.ops.sft.relit_preview, "no capture folder")
     bpy.ops.sft.import_cameras(filepath=str(env_capture))
@@ -322,3 +330,14 @@ def test_export_gltf_vertex_colours_and_bad_input(context, addon, lights_capture
     prim = doc["meshes"][0]["primitives"][0]
     assert "COLOR_0" in prim["attributes"] and "TEXCOORD_0" not in prim["attributes"]
     assert doc["materials"][0]["pbrMetallicRoughness"]["roughnessFactor"] == pytest.approx(0.35, abs=1e-3)
+
+
+def test_opening_another_file_stops_the_job_cleanly(context, addon, tmp_path):
+    job = _scripted_job(addon, tmp_path, "--steps", "1000", "--delay", "0.05")
+    while job.applied is None:
+        job.step(context)
+        time.sleep(0.02)
+    bpy.ops.wm.read_homefile(use_empty=True)  # load_pre: the modal operator would end here
+    assert (tmp_path / "run" / "STOP").exists() and job.state.status == "stopping"
+    job.process.wait(timeout=30)  # what the drain timer does in the UI
+    assert job.process.returncode == 130

@@ -1,0 +1,89 @@
+"""The sidebar panels' draw code, run against a layout that records what it draws and
+checks every property, operator and icon name against Blender's RNA (panels cannot be
+drawn in background mode)."""
+
+from __future__ import annotations
+
+import sys
+import time
+import types
+
+import bpy
+import pytest
+
+from .conftest import SCRIPTED_BACKEND
+
+ICONS = set(bpy.types.UILayout.bl_rna.functions["label"].parameters["icon"].enum_items.keys())
+
+
+class RecordingLayout:
+    def __init__(self, log: list):
+        self.log = log
+        self.enabled = True
+
+    def _child(self, *args, **kwargs):
+        return RecordingLayout(self.log)
+
+    row = column = box = split = _child
+
+    def prop(self, data, name, **kwargs):
+        assert name in data.bl_rna.properties, name
+        self.log.append(("prop", name))
+
+    def operator(self, idname, icon="NONE", **kwargs):
+        module, name = idname.split(".")
+        assert hasattr(getattr(bpy.ops, module), name), idname
+        assert icon in ICONS, icon
+        self.log.append(("operator", idname, self.enabled))
+
+    def label(self, text="", icon="NONE", **kwargs):
+        assert icon in ICONS, icon
+        self.log.append(("label", text))
+
+    def progress(self, factor=0.0, type="BAR", text=""):
+        assert 0.0 <= factor <= 1.0
+        self.log.append(("progress", round(factor, 3), text))
+
+
+def draw(panel_name: str, context) -> list:
+    log = []
+    getattr(bpy.types, panel_name).draw(types.SimpleNamespace(layout=RecordingLayout(log)), context)
+    return log
+
+
+def test_panels_draw_in_an_empty_scene(context):
+    log = {name: draw(name, context) for name in
+           ("SFT_PT_capture", "SFT_PT_cameras", "SFT_PT_reconstruct", "SFT_PT_preview")}
+    assert ("operator", "sft.import_video", True) in log["SFT_PT_capture"]
+    assert ("operator", "sft.solve_cameras", True) in log["SFT_PT_cameras"]
+    assert ("operator", "sft.reconstruct", True) in log["SFT_PT_reconstruct"]
+    labels = [entry[1] for entry in log["SFT_PT_reconstruct"] if entry[0] == "label"]
+    assert labels == ["Draft: not calibrated", "Balanced: not calibrated", "Final: not calibrated"]
+    assert ("operator", "sft.relit_preview", True) in log["SFT_PT_preview"]
+
+
+def test_reconstruct_panel_shows_progress_and_cancel(context, addon, tmp_path):
+    run = tmp_path / "run"
+    job = addon.jobs.ReconstructJob(sys.executable, ["reconstruct", "c", "--out", str(run), "--steps", "400",
+                                                    "--delay", "0.05"], run, "Reconstruction", root=SCRIPTED_BACKEND)
+    try:
+        while job.state.iteration < 3:
+            job.step(context)
+            time.sleep(0.02)
+        log = draw("SFT_PT_reconstruct", context)
+        progress = next(e for e in log if e[0] == "progress")
+        assert 0 < progress[1] < 0.1 and "ETA" in progress[2]
+        assert any(e[0] == "label" and e[1].startswith("geometry (level 0)  it ") and "loss" in e[1] for e in log)
+        assert ("operator", "sft.reconstruct_cancel", True) in log
+        assert not any(e[:2] == ("operator", "sft.reconstruct") for e in log)  # no second run
+        assert bpy.ops.sft.reconstruct_cancel() == {"FINISHED"}
+        assert any(e == ("label", "Stopping after the current step...") for e in draw("SFT_PT_reconstruct", context))
+        job.run_blocking(context, interval=0.02)
+        log = draw("SFT_PT_reconstruct", context)
+        assert ("label", "Cancelled: the last snapshot is kept") in log
+        assert ("operator", "sft.export_gltf", True) in log
+    finally:
+        if job.running:
+            job.process.kill()
+    with pytest.raises(RuntimeError):  # nothing left to cancel
+        bpy.ops.sft.reconstruct_cancel()
