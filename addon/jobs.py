@@ -136,8 +136,13 @@ def stop_on_load(*_args) -> None:
     for kind in [kind for kind, job in ACTIVE.items() if not job.running]:
         del ACTIVE[kind]
     for job in ACTIVE.values():
-        job.stop()
-    if ACTIVE:
+        stop_unattended(job)
+
+
+def stop_unattended(job: Job) -> None:
+    """Stop a job nobody steps any more; a timer reads its pipes until the process exits."""
+    job.stop()
+    if not bpy.app.timers.is_registered(_drain):
         bpy.app.timers.register(_drain, first_interval=0.2)
 
 

@@ -52,8 +52,14 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
 
 
 def load_addon(python: str | None):
-    """Register the add-on from this repository as the package ``shape_from_tracing``."""
+    """Register the add-on from this repository as the package ``shape_from_tracing``
+    (an installed copy of the extension is disabled for this session first)."""
+    import addon_utils
     import bpy
+
+    for name in [a.module for a in bpy.context.preferences.addons]:
+        if name.endswith(f".{PACKAGE}"):
+            addon_utils.disable(name, default_set=False)
 
     spec = importlib.util.spec_from_file_location(PACKAGE, ROOT / "__init__.py",
                                                   submodule_search_locations=[str(ROOT)])

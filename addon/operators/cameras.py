@@ -95,14 +95,20 @@ class SFT_OT_solve_cameras(JobModal, bpy.types.Operator):
         video = Path(manifest["video"])
         require(video.is_file(), video, "the imported video is gone", "import the video again")
         self.out = capture / "solved"
+        python = backend_python(context)
+        accepts = interpreter.command_options(python, "capture-from-video")
         args = ["capture-from-video", str(video), "--out", str(self.out)]
-        if (capture / fr.MASKS).is_dir():
+        if "--overwrite" in accepts:  # solving again replaces the earlier solution
+            args.append("--overwrite")
+        if (capture / fr.MASKS).is_dir() and "--masks" in accepts:
             args += ["--masks", str(capture / fr.MASKS)]
         sft = context.scene.sft
-        if sft.env_path:
-            args += ["--env", bpy.path.abspath(sft.env_path), "--env-strength", str(sft.env_strength),
-                     "--env-rotation", str(sft.env_rotation)]
-        return jobs.Job(backend_python(context), args, self.out, kind=self.job_kind)
+        if sft.env_path and "--env" in accepts:
+            args += ["--env", bpy.path.abspath(sft.env_path)]
+            for flag, value in (("--env-strength", sft.env_strength), ("--env-rotation", sft.env_rotation)):
+                if flag in accepts:
+                    args += [flag, str(value)]
+        return jobs.Job(python, args, self.out, kind=self.job_kind)
 
     def finish(self, context, job: jobs.Job):
         if job.state.status != "done":

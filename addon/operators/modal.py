@@ -67,3 +67,8 @@ class JobModal:
         context.window_manager.event_timer_remove(self._timer)
         jobs.tag_redraw(context)
         return self.finish(context, self._job)
+
+    def cancel(self, context):
+        """Blender ends the operator (its window closes): stop the backend cleanly; the
+        last snapshot stays on disk."""
+        jobs.stop_unattended(self._job)

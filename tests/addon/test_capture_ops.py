@@ -105,6 +105,21 @@ def test_import_masks_per_video_frame_and_per_frame(context, video, tmp_path):
     assert (labels[:, :30] == 2).all() and (labels[:, 30:] == 5).all()
 
 
+def test_import_masks_from_a_mask_video(context, video, tmp_path):
+    capture = tmp_path / "cap"
+    bpy.ops.sft.import_video(filepath=str(video), capture_dir=str(capture), every_nth=5, blur_threshold=0)
+    masks = []
+    for i in range(12):  # one mask per video frame: a bar whose top row is the frame number
+        m = np.zeros((48, 64, 3), np.uint8)
+        m[i + 2:40, 8:56] = 255
+        masks.append(m)
+    mask_video = write_video(tmp_path / "masks.mp4", masks)
+    assert bpy.ops.sft.import_masks(filepath=str(mask_video)) == {"FINISHED"}
+    for name, source in (("0000", 0), ("0001", 5), ("0002", 10)):
+        m = np.asarray(Image.open(capture / "masks" / f"{name}.png"))
+        assert m[source + 2, 30] == 255 and m[source + 1, 30] == 0 and m[45, 30] == 0
+
+
 def test_import_masks_bad_input(context, video, tmp_path):
     expect_error(bpy.ops.sft.import_masks, "no capture folder", filepath=str(tmp_path / "x.png"))
     capture = tmp_path / "cap"

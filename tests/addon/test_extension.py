@@ -78,3 +78,18 @@ def test_check_backend_button(extension, context):
     finally:
         prefs.python = good
     assert "interpreter not found" in prefs.check_result
+
+
+def test_disable_and_enable_again(extension, context):
+    import addon_utils
+
+    name = extension.__name__
+    python = context.preferences.addons[name].preferences.python
+    addon_utils.disable(name, default_set=True)
+    try:
+        assert not hasattr(bpy.types.Scene, "sft") and not hasattr(bpy.types, "SFT_PT_capture")
+    finally:
+        addon_utils.enable(name, default_set=True)
+        context.preferences.addons[name].preferences.python = python
+    assert hasattr(bpy.types.Scene, "sft") and hasattr(bpy.types, "SFT_PT_reconstruct")
+    assert bpy.ops.sft.check_backend() == {"FINISHED"}
