@@ -35,11 +35,13 @@ ENV_SCALE = "environment.scale"
 @dataclass
 class FitSettings:
     iterations: int = 40
-    lr: float = 0.05  # Adam step on latents (logits)
+    lr: float = 0.1  # Adam step on latents (logits)
+    lr_decay: float = 0.1  # the step shrinks exponentially to lr x lr_decay at the last iteration
     light_lr: float = 0.02  # Adam step on the log brightness factor
     spp: int = 0  # 0: the renderer's
     views_per_step: int = 1
     variance_weight: float = 0.0  # lambda in lambda * Var(specular) (per material)
+    smoothness_weight: float = 1.0  # x mean squared difference of neighbouring mesh-color samples
     highlight_threshold: float = 0.15  # drop pixels whose predicted highlight exceeds this share
     seed: int = 0
 
@@ -84,6 +86,27 @@ def variance_penalty(material: MeshColorMaterial, name: str):
     return dr.mean(dr.square(v - mean))
 
 
+def sample_edges(material: MeshColorMaterial) -> tuple[mi.UInt32, mi.UInt32]:
+    """Pairs of neighbouring mesh-color samples (the edges of the sub-triangles)."""
+    if material.resolution == 0:
+        return mi.UInt32(), mi.UInt32()
+    tris = material.layout.sub_triangles()
+    edges = np.unique(np.sort(np.concatenate([tris[:, [0, 1]], tris[:, [1, 2]], tris[:, [2, 0]]]), 1), axis=0)
+    return mi.UInt32(edges[:, 0].astype(np.uint32)), mi.UInt32(edges[:, 1].astype(np.uint32))
+
+
+def smoothness_penalty(material: MeshColorMaterial, name: str, edges: tuple[mi.UInt32, mi.UInt32]):
+    """Mean squared difference between neighbouring samples of a mesh-color channel (Dr.Jit)."""
+    ch = material.channels[name]
+    width, lo, hi = material.CHANNELS[name]
+    a, b = edges
+    if ch.kind != "colors" or dr.width(a) == 0:
+        return mi.Float(0.0)
+    kind = mi.Color3f if width == 3 else mi.Float
+    diff = squash(dr.gather(kind, ch.latent, a), lo, hi) - squash(dr.gather(kind, ch.latent, b), lo, hi)
+    return dr.mean(dr.squared_norm(diff) if width == 3 else dr.square(diff))
+
+
 class LightFactor:
     """The environment map's brightness factor k (scene scale = strength * k), as log k."""
 
@@ -125,7 +148,6 @@ def fit(renderer, images: list[np.ndarray], weights: list[np.ndarray], material:
     factor = LightFactor(renderer, material) if light else None
     if factor is not None and factor.present:
         opt["light"] = mi.Float(math.log(material.light_factor))
-        opt.set_learning_rate({"light": settings.light_lr})
     else:
         factor = None
     targets = [_tensor(img[..., :3]) for img in images]
@@ -135,7 +157,11 @@ def fit(renderer, images: list[np.ndarray], weights: list[np.ndarray], material:
     order: list[int] = []
     result = FitResult(stage)
     n_views = len(images)
+    edges = sample_edges(material) if settings.smoothness_weight else None
     for it in range(settings.iterations):
+        decay = settings.lr_decay ** (it / max(settings.iterations - 1, 1))
+        opt.set_learning_rate({**{n: settings.lr * decay for n in names},
+                               **({"light": settings.light_lr * decay} if factor is not None else {})})
         material.load_parameters({n: opt[n] for n in names})
         if factor is not None:
             factor.set(opt["light"])
@@ -150,6 +176,9 @@ def fit(renderer, images: list[np.ndarray], weights: list[np.ndarray], material:
         loss /= min(settings.views_per_step, n_views)
         if settings.variance_weight and "specular" in names:
             loss += settings.variance_weight * variance_penalty(material, "specular")
+        if settings.smoothness_weight:
+            for n in names:
+                loss += settings.smoothness_weight * smoothness_penalty(material, n, edges)
         dr.backward(loss)
         opt.step()
         result.losses.append(float(loss[0]))

@@ -32,7 +32,7 @@ def fit_albedo(mesh, labels, cams, lights, images, weights, max_depth):
     material.set_values("specular", 1e-3)
     renderer = SceneRenderer(mesh, material.field, cams, lights, None,
                              RenderSettings(spp=16, max_depth=max_depth, integrator="prb"))
-    stages.fit(renderer, images, weights, material, ["albedo"], stages.FitSettings(iterations=60, lr=0.08))
+    stages.fit(renderer, images, weights, material, ["albedo"], stages.FitSettings(iterations=60, lr=0.2))
     return material.values("albedo")
 
 
