@@ -52,7 +52,7 @@ def corners(table: mi.UInt32, r: int, prim, uv, active):
     return [(dr.gather(mi.UInt32, table, base + kk, active), w) for kk, w in zip(local, weights)]
 
 
-class MaterialField:
+class MeshColorsField:
     """Material field for SurfaceBSDF: reads the owning material's current Dr.Jit arrays."""
 
     def __init__(self, material):

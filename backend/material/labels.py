@@ -220,3 +220,15 @@ def _fill_unseen(mesh: Mesh, labels: np.ndarray, seen: np.ndarray) -> np.ndarray
         labels[grow] = counts[grow].argmax(1)
         known |= grow
     return labels
+
+
+def face_labels(mesh: Mesh, cameras: list[Camera], label_images: list[np.ndarray] | None = None,
+                images: list[np.ndarray] | None = None, object_masks: list[np.ndarray] | None = None,
+                n_materials: int = 1, seed: int = 0) -> FaceLabels:
+    """Per-face labels from the capture's material masks (``load_material_labels``), else from
+    clustering the frames' colours into ``n_materials``, else one material for every face."""
+    if label_images is None:
+        if n_materials <= 1:
+            return FaceLabels(np.zeros(mesh.n_faces, np.int64), [1], 0.0, 0, 0)
+        label_images = cluster_labels(images, object_masks, n_materials, seed)
+    return vote_face_labels(mesh, cameras, label_images)

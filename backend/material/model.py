@@ -23,7 +23,7 @@ import numpy as np
 
 from .. import fsio
 from ..geometry.mesh import Mesh
-from .field import MaterialField, squash_np, unsquash_np
+from .field import MeshColorsField, squash_np, unsquash_np
 from .meshcolors import MeshColorLayout, local_sub_triangles
 from .transfer import locate, project_onto_faces
 
@@ -53,7 +53,7 @@ class MeshColorMaterial:
         self.labels = np.zeros(mesh.n_faces, np.int64)
         self.n_materials = 0
         self.channels = {name: Channel("constant", mi.Float(0.0)) for name in self.CHANNELS}
-        self.field = MaterialField(self)
+        self.field = MeshColorsField(self)
         self._push_topology()
         self.set_labels(self.labels if labels is None else labels, n_materials)
         self.reset()
@@ -205,16 +205,21 @@ class MeshColorMaterial:
         for name, vals in colors.items():
             self.set_values(name, vals, "colors")
 
-    def on_remesh(self, new_mesh: Mesh, reset: bool = True) -> None:
-        """After simplification or re-meshing: labels go to the nearest old face; values restart
-        from neutral grey (``reset``) or are resampled at the closest old surface points."""
+    def on_remesh(self, new_mesh: Mesh, old_mesh: Mesh | None = None, reset: bool = True) -> None:
+        """After simplification or re-meshing: labels go to the nearest face of ``old_mesh`` (the
+        mesh the material was last on, positions as the loop left them; default: the positions
+        of the last transfer); values restart from neutral grey (``reset``, as the paper does) or
+        are resampled at the closest old surface points. Re-vote the labels on the new mesh when
+        label images are available (labels.vote_face_labels)."""
+        old_vertices = self.vertices if old_mesh is None else old_mesh.vertices
+        old_faces = self.layout.faces
         centroids = new_mesh.vertices[new_mesh.faces].mean(1)
-        parent, _, _ = locate(centroids, self.vertices, self.layout.faces, exhaustive=False)
+        parent, _, _ = locate(centroids, old_vertices, old_faces, exhaustive=False)
         layout = MeshColorLayout(new_mesh.faces, new_mesh.n_vertices, self.resolution)
         colors = {}
         if not reset:
             points = layout.sample_positions(new_mesh.vertices)
-            f, b, _ = locate(points, self.vertices, self.layout.faces, exhaustive=False)
+            f, b, _ = locate(points, old_vertices, old_faces, exhaustive=False)
             colors = {n: self.layout.evaluate(v, f, b[:, 1], b[:, 2]) for n, v in self._colors().items()}
         self._replace_mesh(new_mesh, layout, self.labels[parent])
         if reset:

@@ -159,3 +159,23 @@ def test_clustering_separates_two_colours():
         assert set(np.unique(lab[t > 0])) == {1, 2}
         same = lab[t > 0] == t[t > 0]
         assert same.all() or (~same).all()  # one cluster per colour (numbering is free)
+
+
+def test_face_labels_from_clustered_frames():
+    mesh = procedural.blob(3)
+    centroids = mesh.vertices[mesh.faces].mean(1)
+    truth = np.where(centroids[:, 2] > 0.05, 2, 1)
+    cams = layout.orbit_cameras(layout.fibonacci_sphere(8), np.zeros(3), 0.6, 48)
+    rng = np.random.default_rng(0)
+    images, masks = [], []
+    for c in cams:
+        lab = pixel_labels(mesh, truth, c)
+        shade = rng.uniform(0.3, 1.0, lab.shape)[..., None]
+        images.append(np.where((lab == 2)[..., None], [0.7, 0.2, 0.1], [0.1, 0.3, 0.6]) * shade * (lab > 0)[..., None])
+        masks.append((lab > 0).astype(np.float32))
+    result = L.face_labels(mesh, cams, None, images, masks, n_materials=2)
+    assert result.n_materials == 2
+    agree = np.mean(result.labels == (truth - 1))
+    assert max(agree, 1 - agree) > 0.97  # cluster numbering is free
+    single = L.face_labels(mesh, cams)
+    assert single.n_materials == 1 and not single.labels.any()
