@@ -54,6 +54,7 @@ class MeshColorMaterial:
         self.n_materials = 0
         self.channels = {name: Channel("constant", mi.Float(0.0)) for name in self.CHANNELS}
         self.field = MeshColorsField(self)
+        self.trainable: tuple[str, ...] = tuple(self.CHANNELS)  # channels the loop may step jointly
         self._push_topology()
         self.set_labels(self.labels if labels is None else labels, n_materials)
         self.reset()
@@ -105,6 +106,7 @@ class MeshColorMaterial:
         ch = self.channels[name]
         ch.kind = kind
         mi.set_property(ch.latent, mi.Float(unsquash_np(values, lo, hi).astype(np.float32).ravel()))
+        dr.make_opaque(ch.latent)
 
     def reset(self) -> None:
         """Neutral grey constants for every material (the restart after a re-mesh)."""
@@ -149,9 +151,11 @@ class MeshColorMaterial:
         return {name: ch.latent for name, ch in self.channels.items()}
 
     def load_parameters(self, params: dict) -> None:
-        """Take latents back (e.g. an optimizer's updated arrays) for the named channels."""
+        """Take latents back (an optimizer's updated Dr.Jit or numpy arrays) for the named channels."""
         for name, latent in params.items():
             ch = self.channels[name]
+            if not dr.is_array_v(latent):
+                latent = mi.Float(np.asarray(latent, np.float32).ravel())
             if dr.width(latent) != dr.width(ch.latent):
                 raise ValueError(f"{name}: {dr.width(latent)} latents, expected {dr.width(ch.latent)}")
             mi.set_property(ch.latent, latent)

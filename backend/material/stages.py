@@ -64,6 +64,14 @@ def _tensor(a: np.ndarray) -> mi.TensorXf:
     return mi.TensorXf(np.ascontiguousarray(a, dtype=np.float32))
 
 
+def _weights(weights, images) -> list[np.ndarray]:
+    """Per-view (H, W) weights; None (no masks) weighs every pixel."""
+    if weights is None:
+        return [np.ones(img.shape[:2], np.float32) for img in images]
+    return [np.ones(img.shape[:2], np.float32) if w is None else np.asarray(w, np.float32)
+            for w, img in zip(weights, images)]
+
+
 def _weights3(w: np.ndarray) -> np.ndarray:
     w = np.asarray(w, np.float32)
     return np.repeat(w[..., None], 3, -1) if w.ndim == 2 else w
@@ -135,12 +143,13 @@ def apply_light_factor(renderer, material: MeshColorMaterial, strength: float) -
         renderer.params.update()
 
 
-def fit(renderer, images: list[np.ndarray], weights: list[np.ndarray], material: MeshColorMaterial,
+def fit(renderer, images: list[np.ndarray], weights: list[np.ndarray] | None, material: MeshColorMaterial,
         names: list[str], settings: FitSettings, light: bool = False, stage: str = "fit",
         emit=None) -> FitResult:
     """Adam on the named channels' latents (and log brightness when ``light``), minimising the
     weighted mean squared error of renders against ``images`` plus the variance penalty."""
     start = time.time()
+    weights = _weights(weights, images)
     opt = mi.ad.Adam(lr=settings.lr, mask_updates=True)
     params = material.parameters()
     for n in names:
@@ -196,6 +205,7 @@ def fit(renderer, images: list[np.ndarray], weights: list[np.ndarray], material:
 
 def evaluate_loss(renderer, images, weights, material: MeshColorMaterial, spp: int = 0, seed: int = 7) -> float:
     """Weighted mean squared error over all views (no gradients, fixed seeds)."""
+    weights = _weights(weights, images)
     total = 0.0
     for v, (img, w) in enumerate(zip(images, weights)):
         out = renderer.render_numpy(v, seed=seed + v, spp=spp or None)[..., :3]
@@ -225,6 +235,7 @@ def highlight_masks(renderer, images, weights, material: MeshColorMaterial, thre
     The geometry is rendered as a mirror-like surface under the capture's lights (specular
     lobe only, with the material's current specular and roughness, so point lights give
     highlights too); pixels where it exceeds ``threshold`` x the target are masked."""
+    weights = _weights(weights, images)
     old = renderer.field
     renderer.set_field(SpecularOnlyField(material.field))
     try:
@@ -252,6 +263,7 @@ def fit_diffuse(renderer, images, weights, material: MeshColorMaterial, settings
     """Stage 2: mesh-color albedo (initialised from the constants), highlights masked out;
     ``light`` also fits the environment brightness factor (the first texture round)."""
     settings = settings or FitSettings()
+    weights = _weights(weights, images)
     material.make_spatial("albedo")
     masks = highlight_masks(renderer, images, weights, material, settings.highlight_threshold, settings.spp)
     kept = [np.asarray(w, np.float32) * (~m) for w, m in zip(weights, masks)]

@@ -123,3 +123,20 @@ def test_save_and_load_round_trip(tmp_path):
         assert back.channels[name].kind == m.channels[name].kind
         assert np.allclose(back.values(name), m.values(name), atol=1e-6)
     assert m.summary()["roughness"] == [[0.2], [0.5], [0.8]]
+
+
+def test_loop_interface_accepts_numpy_latents():
+    """The loop keeps best latents as numpy arrays and loads them back (backtracking)."""
+    mesh = lumpy(1)
+    m = textured(mesh, 2)
+    assert set(m.trainable) == set(m.CHANNELS)
+    saved = {n: np.array(z, np.float64) for n, z in m.parameters().items()}
+    before = m.values("albedo")
+    objects = {n: z for n, z in m.parameters().items()}
+    m.load_parameters({n: z + 1.0 for n, z in saved.items()})
+    assert not np.allclose(m.values("albedo"), before)
+    m.load_parameters(saved)
+    assert np.allclose(m.values("albedo"), before, atol=1e-6)
+    assert all(m.parameters()[n] is objects[n] for n in objects)  # updated in place
+    with pytest.raises(ValueError):
+        m.load_parameters({"albedo": saved["albedo"][:-3]})
