@@ -30,6 +30,7 @@ class Job:
         self.state = RunState()
         self.run_dir = run_dir
         self.process = BackendProcess(python, args, run_dir, root)
+        self._settled = False
         ACTIVE[kind] = self
 
     @property
@@ -46,11 +47,13 @@ class Job:
         for event in events:
             self.state.update(event)
         self.on_events(context, events)
-        if self.process.finished:
+        if not self.process.finished:
+            return True
+        if not self._settled:
+            self._settled = True
             self.state.finish(self.process.returncode, self.process.log_tail(6).replace("\n", " | "))
             self.on_finish(context)
-            return False
-        return True
+        return False
 
     def on_events(self, context, events: list[dict]) -> None:
         pass

@@ -78,9 +78,11 @@ class RunState:
             self.fraction = 1.0
         else:
             self.status = FAILED
-            self.message = self.message or f"the backend exited with code {returncode}"
-            if log_tail:
-                self.message += f"; log: {log_tail}"
+            if not self.message and returncode == 2 and log_tail:  # bad input: the CLI's one line
+                self.message = log_tail.split(" | ")[-1].removeprefix("error: ")
+            elif not self.message:  # a crash without an error event: the log tells what happened
+                self.message = f"the backend exited with code {returncode}"
+                self.message += f"; log: {log_tail}" if log_tail else ""
         self._eta_s, self._eta_at = 0.0, time.monotonic()
 
     def stopping(self) -> None:

@@ -60,12 +60,13 @@ class SFT_OT_reconstruct(JobModal, bpy.types.Operator):
         except OSError as err:
             raise AddonInputError(python, f"cannot start the backend ({err.strerror})",
                                   "choose the backend Python in the add-on preferences") from err
-        sft.run_dir = str(run)
         return job
 
     def finish(self, context, job: jobs.ReconstructJob):
         state = job.state
         changed = job.applied is not None
+        if changed:
+            context.scene.sft.run_dir = str(job.run_dir)
         if state.status == progress.DONE:
             metrics = state.done.get("metrics") or {}
             shown = ", ".join(f"{k} {v:.4g}" for k, v in metrics.items() if isinstance(v, (int, float)))

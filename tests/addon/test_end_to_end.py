@@ -142,3 +142,14 @@ def test_headless_script_bad_input(tmp_path):
     assert proc.returncode == 2
     assert proc.stderr.strip().splitlines()[-1].startswith("error: ") and "nowhere" in proc.stderr
     assert "Traceback" not in proc.stderr and not (tmp_path / "x.blend").exists()
+
+
+@needs_reconstruct
+def test_backend_bad_input_is_one_line_and_leaves_scene(context, tmp_path):
+    from .test_capture_ops import expect_error
+
+    (tmp_path / "capture.json").write_text('{"format": "shape-from-tracing-capture", "version": 1, "frames": []}')
+    context.scene.sft.extra_args = TINY
+    message = expect_error(bpy.ops.sft.reconstruct, "capture.json", "reconstruction failed",
+                           capture_dir=str(tmp_path), run_dir=str(tmp_path / "run"))
+    assert "Traceback" not in message and "exited with code" not in message

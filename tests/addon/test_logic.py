@@ -216,8 +216,11 @@ def test_run_state_settles_crash_and_cancel():
     assert cancelled.status == progress.CANCELLED
     failed = progress.RunState()
     failed.update({"event": "error", "message": "capture.json: no frames"})
-    failed.finish(2)
-    assert failed.message.startswith("capture.json: no frames")
+    failed.finish(2, "error: ignored because the event said it")
+    assert failed.message == "capture.json: no frames"
+    bad = progress.RunState()
+    bad.finish(2, "loading | error: x/capture.json: capture has no frames. Fix: add frames")
+    assert bad.status == progress.FAILED and bad.message == "x/capture.json: capture has no frames. Fix: add frames"
 
 
 def test_format_duration():
