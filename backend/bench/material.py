@@ -1,6 +1,6 @@
-"""``bench material``: material reconstruction against known truth.
+"""Material reconstruction against known truth (dragon, textured glossy): novel-view, albedo, relit scores.
 
-Synthesises (once, cached in the output folder) a paper-style capture: the dragon with a
+``python -m backend bench material [--geometry RUN/result.ply]`` synthesises (once, cached in the output folder) a paper-style capture: the dragon with a
 textured albedo and a glossy specular lobe under two point lights per camera, plus
 held-out views and relit views under a second sky. The material is then fitted on the
 given geometry (the truth by default, or ``--geometry`` a reconstruction in the capture's
@@ -47,9 +47,19 @@ class MaterialBench:
     seed: int = 0
 
 
+HELP = {"mesh": "the object (its truth material: procedural albedo pattern, specular 0.25, roughness 0.35)",
+        "up": "the mesh file's up axis (z or y)", "truth_spp": "samples per pixel of the synthetic capture",
+        "spp": "samples per pixel of the training renders", "eval_spp": "samples per pixel of the scored renders",
+        "mesh_color_resolution": "mesh-color resolution r on the geometry", "lr": "Adam step on the latents",
+        "variance_weight": "lambda of the specular variance penalty",
+        "smoothness_weight": "weight of the mesh-color smoothness prior",
+        "geometry": "a reconstructed mesh in the capture's frame (default: the true geometry)"}
+
+
 def add_arguments(parser) -> None:
     for f in fields(MaterialBench):
-        parser.add_argument("--" + f.name.replace("_", "-"), type=type(f.default), default=f.default)
+        parser.add_argument("--" + f.name.replace("_", "-"), type=type(f.default), default=f.default,
+                            help=HELP.get(f.name, f.name.replace("_", " ")) + " (default: %(default)s)")
     parser.add_argument("--out", type=Path, default=REPO / "runs" / "bench-material")
     parser.add_argument("--variant", help="Mitsuba variant (default: automatic)")
 

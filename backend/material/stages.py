@@ -18,6 +18,7 @@ loss; the first such cycle also fits the environment brightness factor), ``specu
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from dataclasses import dataclass, field
@@ -336,7 +337,7 @@ def run_cycle(schedule: MaterialSchedule, renderer, images, weights, material: M
                              emit=emit)
         schedule.light_fitted = True
     elif stage == "specular":
-        spec = settings if settings.variance_weight else FitSettings(**{**settings.__dict__, "variance_weight": 0.1})
+        spec = settings if settings.variance_weight else dataclasses.replace(settings, variance_weight=0.1)
         result = fit_specular(renderer, images, weights, material, spec, emit=emit)
     else:
         return FitResult("done")

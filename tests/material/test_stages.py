@@ -111,3 +111,22 @@ def test_schedule_runs_constant_then_diffuse_then_specular():
     assert seen == ["constant"] * 5 + ["diffuse"] * 3 + ["specular"] * 3
     s.on_remesh()
     assert s.stage == "constant" and s.constant_cycles == s.restart_cycles
+
+
+def test_run_cycle_walks_the_schedule():
+    mesh, cams, lights, truth = scene(env=True)
+    sky = procedural.sky(64)
+    env = Environment("sky.exr", 1.0, 0.0)
+    images, weights = render_truth(mesh, cams[:3], lights[:3], truth, env, sky)
+    material = MeshColorMaterial(mesh, 1)
+    renderer = SceneRenderer(mesh, material.field, cams[:3], lights[:3], env,
+                             RenderSettings(spp=4, max_depth=2, integrator="prb"), env_pixels=sky)
+    schedule = stages.MaterialSchedule(constant_cycles=1, patience=1, min_improvement=0.5)
+    ran = []
+    while schedule.stage != "done" and len(ran) < 8:
+        ran.append(stages.run_cycle(schedule, renderer, images, None, material,
+                                    stages.FitSettings(iterations=4)).stage)
+    assert ran[0] == "constant" and "diffuse" in ran and ran[-1] == "specular" and schedule.stage == "done"
+    assert schedule.light_fitted and material.light_factor != 1.0
+    assert material.channels["albedo"].kind == material.channels["specular"].kind == "colors"
+    assert len(schedule.history) == len(ran)
