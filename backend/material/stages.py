@@ -194,7 +194,7 @@ def fit(renderer, images: list[np.ndarray], weights: list[np.ndarray] | None, ma
         result.losses.append(float(loss[0]))
         if emit:
             emit("progress", stage=f"material:{stage}", iteration=it + 1, iterations=settings.iterations,
-                 loss=result.losses[-1])
+                 loss=result.losses[-1], faces=material.n_faces)
     material.load_parameters({n: dr.detach(opt[n]) for n in names})
     if factor is not None:
         result.light_factor = factor.finish(opt["light"])
@@ -216,29 +216,32 @@ def evaluate_loss(renderer, images, weights, material: MeshColorMaterial, spp: i
 
 
 class SpecularOnlyField:
-    """A material field with the albedo removed: renders only the specular lobe."""
+    """A material field with the albedo removed (only the specular lobe renders), optionally
+    with one fixed roughness."""
 
-    def __init__(self, field):
+    def __init__(self, field, roughness: float | None = None):
         self.inner = field
+        self.roughness = roughness
 
     def arrays(self) -> dict:
         return self.inner.arrays()
 
     def lookup(self, si, active):
         _, spec, rough = self.inner.lookup(si, active)
-        return mi.Color3f(0.0), spec, rough
+        return mi.Color3f(0.0), spec, rough if self.roughness is None else mi.Float(self.roughness)
 
 
 def highlight_masks(renderer, images, weights, material: MeshColorMaterial, threshold: float = 0.15,
-                    spp: int = 0) -> list[np.ndarray]:
+                    spp: int = 0, mirror_roughness: float | None = None) -> list[np.ndarray]:
     """Pixels where the predicted specular highlight is a large share of the observed radiance.
 
-    The geometry is rendered as a mirror-like surface under the capture's lights (specular
-    lobe only, with the material's current specular and roughness, so point lights give
-    highlights too); pixels where it exceeds ``threshold`` x the target are masked."""
+    The geometry is rendered as a mirror under the capture's lights: the specular lobe alone,
+    with the material's current specular and roughness (a perfect mirror reflects nothing of a
+    point light, so by default the lobe keeps the fitted roughness; ``mirror_roughness`` = 0
+    gives the near-perfect mirror). Pixels where it exceeds ``threshold`` x the target are masked."""
     weights = _weights(weights, images)
     old = renderer.field
-    renderer.set_field(SpecularOnlyField(material.field))
+    renderer.set_field(SpecularOnlyField(material.field, mirror_roughness))
     try:
         out = []
         for v, (img, w) in enumerate(zip(images, weights)):
