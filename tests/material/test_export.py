@@ -11,6 +11,7 @@ from backend import variant
 
 variant.choose()
 
+from backend.capture.images import linear_to_srgb  # noqa: E402
 from backend.material import export  # noqa: E402
 from backend.synth import procedural  # noqa: E402
 from tests.material.helpers import random_points  # noqa: E402
@@ -74,7 +75,18 @@ BLENDER_CHECK = textwrap.dedent("""
     mesh = objects[0].data
     nodes = objects[0].active_material.node_tree.nodes
     principled = [n for n in nodes if n.bl_idname == "ShaderNodeBsdfPrincipled"][0]
+    base = bpy.data.images["base_color"]
+    w, h = base.size
+    pixels = base.pixels[:]
+    uv = mesh.uv_layers.active.data
+    centre_colours = []  # base colour texel under each face's UV centroid, as Blender addresses it
+    for poly in mesh.polygons[:40]:
+        u = sum(uv[i].uv[0] for i in poly.loop_indices) / 3
+        v = sum(uv[i].uv[1] for i in poly.loop_indices) / 3
+        x, y = min(int(u * w), w - 1), min(int(v * h), h - 1)  # Blender: rows from the bottom
+        centre_colours.append(pixels[4 * (y * w + x):4 * (y * w + x) + 3])
     print("RESULT", json.dumps({
+        "centre_colours": centre_colours,
         "objects": len(objects), "faces": len(mesh.polygons), "uv_layers": len(mesh.uv_layers),
         "images": {i.name: list(i.size) for i in bpy.data.images},
         "linked": [k for k in ("Base Color", "Roughness") if principled.inputs[k].is_linked],
@@ -97,3 +109,7 @@ def test_blender_imports_the_glb(tmp_path):
     assert all(min(size) > 1 for size in out["images"].values())
     assert out["linked"] == ["Base Color", "Roughness"]
     assert abs(out["zmax"] - mesh.vertices[:, 2].max()) < 1e-4  # Z up again in Blender
+    # Blender reads the texture where the atlas put each face (UV orientation and sRGB agree)
+    third = np.full(40, 1 / 3)
+    expected = linear_to_srgb(m.evaluate(np.arange(40), third, third)["albedo"])
+    assert np.abs(np.array(out["centre_colours"]) - expected).max() < 0.03
