@@ -1,0 +1,76 @@
+"""What the reconstruction loop needs to run materials, in four calls.
+
+    driver = MaterialDriver(capture, n_materials=1)         # material masks checked (InputError)
+    material = driver.material(mesh, cameras, images, masks) # labels voted, neutral grey start
+    ... after each geometry level, with the level's renderer and views:
+    driver.cycle(renderer, images, masks, material, emit)    # one stage of the schedule
+    driver.on_remesh(mesh, material, cameras)                # after a re-mesh (labels re-voted)
+
+``driver.done`` tells when the material schedule has finished (the loss stopped improving
+in the last stage)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..capture.model import Camera, Capture
+from ..geometry.mesh import Mesh
+from .labels import FaceLabels, face_labels, load_material_labels
+from .model import MeshColorMaterial
+from .stages import FitResult, FitSettings, MaterialSchedule, run_cycle
+
+
+@dataclass
+class MaterialDriver:
+    capture: Capture
+    n_materials: int = 1  # materials to find by clustering when the capture has no material masks
+    resolution: int = 4  # mesh-color resolution r
+    settings: FitSettings = field(default_factory=FitSettings)
+    schedule: MaterialSchedule = field(default_factory=MaterialSchedule)
+    labels: FaceLabels | None = None
+    results: list[FitResult] = field(default_factory=list)
+
+    def __post_init__(self):
+        self.label_images = load_material_labels(self.capture)  # bad masks fail before any work
+        self._images = self._masks = None
+
+    @property
+    def done(self) -> bool:
+        return self.schedule.stage == "done"
+
+    def material(self, mesh: Mesh, cameras: list[Camera], images: list[np.ndarray],
+                 masks: list[np.ndarray] | None) -> MeshColorMaterial:
+        """A neutral grey material on ``mesh`` with per-face labels from the masks (or colours)."""
+        self._images, self._masks = images, masks
+        self.labels = face_labels(mesh, cameras, self.label_images, images, masks, self.n_materials)
+        return MeshColorMaterial(mesh, self.resolution, self.labels.labels, self.labels.n_materials)
+
+    def relabel(self, mesh: Mesh, material: MeshColorMaterial, cameras: list[Camera]) -> None:
+        """Vote the labels again on the current geometry (when several materials exist)."""
+        if self.label_images is None and self.n_materials <= 1:
+            return
+        self.labels = face_labels(mesh, cameras, self.label_images, self._images, self._masks, self.n_materials)
+        material.set_labels(self.labels.labels, self.labels.n_materials)
+
+    def cycle(self, renderer, images, masks, material: MeshColorMaterial, emit=None) -> FitResult:
+        """Run the schedule's current stage once on ``renderer`` (built with ``material.field``)."""
+        result = run_cycle(self.schedule, renderer, images, masks, material, self.settings, emit)
+        self.results.append(result)
+        return result
+
+    def on_remesh(self, mesh: Mesh, material: MeshColorMaterial, cameras: list[Camera]) -> None:
+        """Call after ``material.on_remesh(mesh)``: labels re-voted, the schedule restarts."""
+        self.relabel(mesh, material, cameras)
+        self.schedule.on_remesh()
+
+    def report(self) -> dict:
+        out = {"stages": [{"stage": r.stage, "iterations": len(r.losses), "loss": r.loss,
+                           "seconds": round(r.seconds, 2), "highlight_share": r.highlight_share}
+                          for r in self.results],
+               "schedule": self.schedule.history}
+        if self.labels is not None:
+            out["labels"] = {"materials": self.labels.material_ids, "disagreement": self.labels.disagreement,
+                             "votes": self.labels.votes, "unseen_faces": self.labels.unseen_faces}
+        return out
