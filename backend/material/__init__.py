@@ -13,16 +13,16 @@ while the mesh keeps changing.
   the environment brightness factor, textured specular) and ``MaterialSchedule``.
 - ``export``: baked texture atlas and ``write_glb`` (glTF 2.0 with KHR_materials_specular).
 
-Typical use by the loop::
+- ``driver``: ``MaterialDriver``, the four calls the reconstruction loop makes.
 
-    labels_in = labels.load_material_labels(capture)           # at start: bad masks -> InputError
-    material = MeshColorMaterial(mesh, resolution=4)
-    renderer = SceneRenderer(mesh, material.field, cams, lights, env, RenderSettings(integrator="prb"))
-    found = labels.face_labels(mesh, cams, labels_in, images, masks, n_materials)
-    material.set_labels(found.labels, found.n_materials)      # found.disagreement: for the report
-    schedule = stages.MaterialSchedule()
-    while schedule.stage != "done":                             # alternate with geometry cycles
-        ...geometry...; material.on_subdivide(old, new) / material.on_remesh(new); schedule.on_remesh()
-        stages.run_cycle(schedule, renderer, images, masks, material)
+Typical use by the loop (see ``driver``)::
+
+    driver = MaterialDriver(capture, n_materials)              # bad material masks -> InputError
+    material = driver.material(mesh, cameras, images, masks)    # pass to Reconstruction(material=...)
+    renderer = SceneRenderer(mesh, material.field, ...)         # the level's renderer (AD integrator)
+    while not driver.done:                                      # alternating with geometry levels
+        ...geometry level...; material.on_subdivide(old, new) or material.on_remesh(new, old)
+        driver.on_remesh(new, material, cameras)                # only after a re-mesh
+        driver.cycle(renderer, images, masks, material)
     export.write_glb(run / "result.glb", mesh, material)
 """
