@@ -6,6 +6,8 @@ from pathlib import Path
 
 import pytest
 
+import bpy  # noqa: F401  (bpy must load before pymeshlab: both ship an Embree 4)
+
 import backend  # noqa: F401  (points Dr.Jit at libLLVM >= 17 before any test imports drjit)
 from tests.helpers import run_cli
 

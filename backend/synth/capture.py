@@ -133,8 +133,8 @@ def synthesize(spec: SynthSpec, out: Path, emit) -> Capture:
     settings = RenderSettings(spp=spec.spp, max_depth=spec.max_depth, integrator="path",
                               hide_emitters=True)
 
-    def render_set(root, cameras, names, what, environment, pixels):
-        lights = [lights_of(c) for c in cameras]
+    def render_set(root, cameras, names, what, environment, pixels, point_lights=True):
+        lights = [lights_of(c) if point_lights else [] for c in cameras]
         renderer = SceneRenderer(mesh, field, cameras, lights, environment, settings, extra, pixels, rgba=True)
         masker = SceneRenderer(mesh, field, cameras, lights, None, RenderSettings(spp=16, max_depth=2),
                                rgba=True) if extra else None
@@ -160,8 +160,7 @@ def synthesize(spec: SynthSpec, out: Path, emit) -> Capture:
         relit_pixels = _environment_pixels(spec.relit_environment, 1)
         relit_env = Environment(gt / "relit" / "env.exr", 1.0, 0.0)
         write_image(relit_env.path, relit_pixels)
-        sub = render_set(gt / "relit", held, names, "relit", relit_env, relit_pixels)
-        sub.frames = [Frame(f.name, f.image, f.camera, f.mask) for f in sub.frames]
+        sub = render_set(gt / "relit", held, names, "relit", relit_env, relit_pixels, point_lights=False)
         save_capture(sub)
         truth.update(held_out="gt/held_out", relit="gt/relit")
     capture.ground_truth = truth
