@@ -25,9 +25,10 @@ def validate_environment(capture: Capture) -> None:
 def validate_capture(capture: Capture, check_masks: bool = True) -> None:
     """Raise :class:`InputError` on the first problem found."""
     with_mask = [f for f in capture.frames if f.mask is not None]
-    require(not with_mask or len(with_mask) == len(capture.frames), with_mask[0].mask if with_mask else None,
-            f"{len(with_mask)} masks for {len(capture.frames)} frames",
-            "give one mask per frame (or none at all)")
+    if with_mask and len(with_mask) < len(capture.frames):
+        lacking = next(f for f in capture.frames if f.mask is None)
+        raise InputError(lacking.image, f"frame {lacking.name} has no mask ({len(with_mask)} masks for "
+                         f"{len(capture.frames)} frames)", "give one mask per frame (or none at all)")
     mask_area = 0.0
     for frame in capture.frames:
         check_pose(frame.camera.camera_to_world, frame.image, f"frame {frame.name}")
