@@ -16,6 +16,7 @@ import numpy as np
 
 from ..capture.images import read_rgba
 from ..capture.model import Camera, Environment, PointLight
+from ..capture.undistort import needs_resampling
 from ..geometry.mesh import Mesh
 from . import bsdf as _bsdf  # noqa: F401  (registers sft_surface)
 
@@ -55,8 +56,8 @@ class RenderSettings:
 
 
 def sensor_dict(camera: Camera, spp: int, rgba: bool = False) -> dict:
-    if abs(camera.fx - camera.fy) > 1e-3 * camera.fx:
-        raise ValueError("non-square pixels: undistort/resample the capture first")
+    if needs_resampling(camera):
+        raise ValueError("distorted or non-square pixels: import the capture (undistorts) first")
     w, h = camera.width, camera.height
     return {
         "type": "perspective",
