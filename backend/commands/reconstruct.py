@@ -1,0 +1,99 @@
+"""``reconstruct``: refine a mesh until path-traced renders match the capture.
+
+Writes the run folder of docs/protocol.md: events.jsonl, snapshot.json + snapshots/,
+state/ (for --resume), result.ply and report.json. Exit codes: 0 done, 1 internal error,
+2 bad input, 130 cancelled (SIGTERM, SIGINT or RUN/STOP)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from .. import variant
+from ..errors import InputError, require
+from ..events import Emitter
+from ..optimize.config import PRESETS, ReconstructConfig
+
+INIT_HELP = "carve (visual hull; default with masks), sphere, box, spheres (sphere cloud), points (SfM + Poisson), or a mesh file"
+
+
+def add_arguments(parser):
+    d = ReconstructConfig()
+    parser.add_argument("capture", metavar="PATH", type=Path,
+                        help="capture folder (or any importable layout: transforms.json, COLMAP, IDR, Middlebury)")
+    parser.add_argument("--out", required=True, type=Path, metavar="RUN", help="run folder")
+    parser.add_argument("--preset", choices=sorted(PRESETS), default="balanced",
+                        help="quality preset (default %(default)s); the options below override it")
+    parser.add_argument("--init", default=None, help=INIT_HELP)
+    parser.add_argument("--time-budget", type=float, metavar="MINUTES", help="wall-clock budget of the whole run")
+    parser.add_argument("--iterations", type=int, help="cap on optimisation steps over all levels")
+    parser.add_argument("--seed", type=int, default=d.seed)
+    parser.add_argument("--resume", action="store_true", help="continue the run in RUN from its last snapshot")
+    parser.add_argument("--overwrite", action="store_true", help="replace the outputs of an earlier run in RUN")
+    parser.add_argument("--max-size", type=int, metavar="PX", help=f"long side of the finest images ({d.max_size})")
+    parser.add_argument("--coarse-size", type=int, metavar="PX",
+                        help=f"long side of the first level's images ({d.coarse_size})")
+    parser.add_argument("--views-per-step", type=int, metavar="K", help=f"views rendered per step ({d.views_per_step})")
+    parser.add_argument("--material", default=d.material,
+                        help="'auto' (one constant material, estimated) or known:ALBEDO_R,G,B:SPECULAR:ROUGHNESS")
+    parser.add_argument("--initial-faces", type=int, help=f"faces of the initial mesh ({d.initial_faces})")
+    parser.add_argument("--max-levels", type=int, help=f"most coarse-to-fine levels ({d.max_levels})")
+    parser.add_argument("--integrator", choices=["direct_projective", "prb_projective"], help=f"({d.integrator})")
+    parser.add_argument("--max-depth", type=int, help=f"path depth for prb_projective ({d.max_depth})")
+    parser.add_argument("--spp", type=int, help=f"samples per pixel per step ({d.spp})")
+    parser.add_argument("--remesh", choices=["auto", "always", "never"],
+                        help="re-mesh between levels: when inconsistent (auto, the default), always or never")
+    parser.add_argument("--track-metrics", action="store_true",
+                        help="with ground truth: metrics after every level (time not charged to the budget)")
+    parser.add_argument("--variant", help="Mitsuba variant (default: automatic)")
+
+
+OVERRIDES = ("init", "material", "initial_faces", "iterations", "seed", "max_size", "coarse_size", "views_per_step",
+             "integrator", "max_depth", "spp", "remesh", "max_levels", "track_metrics")
+
+
+def config_from_args(args) -> ReconstructConfig:
+    """Defaults, then the preset, then the options given."""
+    for name in ("max_size", "coarse_size", "views_per_step", "initial_faces", "spp", "max_levels", "iterations",
+                 "time_budget", "max_depth"):
+        value = getattr(args, name)
+        flag = "--" + name.replace("_", "-")
+        require(value is None or value > 0, None, f"{flag} must be positive (got {value})", f"give {flag} a value above 0")
+    values = dict(PRESETS[args.preset])
+    values.update({k: getattr(args, k) for k in OVERRIDES if getattr(args, k) not in (None, False)})
+    if args.time_budget is not None:
+        values["time_budget_s"] = 60.0 * args.time_budget
+    config = ReconstructConfig(**values)
+    config.coarse_size = min(config.coarse_size, config.max_size)
+    return config
+
+
+def run(args) -> int:
+    import dataclasses
+
+    from ..capture.format import load_capture
+    from ..optimize.material import ConstantMaterial, parse_spec
+    from ..optimize.run_folder import RunFolder
+
+    config = config_from_args(args)
+    parse_spec(config.material)  # bad input is reported before anything is written
+    capture = load_capture(args.capture)
+    folder = RunFolder.create(args.out, resume=args.resume, overwrite=args.overwrite)
+    emit = Emitter(log_path=folder.events)
+    try:
+        emit("start", run=str(folder.path), capture=str(args.capture), settings=dataclasses.asdict(config))
+        variant.choose(args.variant, emit)
+        from ..optimize.loop import Reconstruction
+
+        material = None if args.resume else ConstantMaterial.from_spec(config.material)
+        return Reconstruction(capture, folder, config, emit, material=material, resume=args.resume).run()
+    except InputError as err:
+        emit("error", message=err.line())
+        raise
+    except KeyboardInterrupt:
+        emit("cancelled", snapshot=None)
+        raise
+    except Exception as err:
+        emit("error", message=f"{type(err).__name__}: {err}")
+        raise
+    finally:
+        emit.close()

@@ -1,0 +1,63 @@
+"""Settings of a reconstruction run (the ``reconstruct`` command's options and the schedule)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+
+@dataclass
+class ReconstructConfig:
+    # what to start from and what to fit
+    init: str | None = None  # carve | sphere | box | spheres | points | FILE; None = by the capture
+    material: str = "auto"  # auto (constant, estimated) or known:R,G,B:SPEC:ROUGH
+    initial_faces: int = 5000  # face count of the initial mesh; the budget D starts at twice this
+    max_faces: int = 250_000  # refinement stops once the budget would exceed this
+    # limits
+    time_budget_s: float | None = None  # wall clock for the whole run (initialisation included)
+    iterations: int | None = None  # total optimisation steps over all levels
+    seed: int = 0
+    # images
+    max_size: int = 256  # long side of the finest images, pixels
+    coarse_size: int = 64  # long side at level 0; doubles every level up to max_size
+    views_per_step: int = 2
+    # rendering
+    integrator: str = "direct_projective"  # or prb_projective (with max_depth) for interreflections
+    max_depth: int = 3
+    spp: int = 16  # samples per pixel for the interior (continuous) part of the gradient
+    sppp: int = 4  # samples per pixel for the silhouette part (the costlier one)
+    validation_views: int = 6
+    validation_spp: int = 16
+    # steps
+    tone: str = "log"  # loss on log(1 + x / mean radiance) ("linear": the paper's plain MSE)
+    lambda_: float = 20.0  # Large Steps smoothing (I + lambda L)
+    step: float = 0.1  # largest step per iteration, as a fraction of the mean edge length
+    clip: float = 10.0  # per-vertex gradients are capped at clip x their median length (0: off)
+    material_warmup: int = 60  # material-only steps before the first geometry step (estimated material)
+    material_lr: float = 0.03  # Adam step on material latents (logits)
+    # convergence (see backend.optimize.schedule)
+    eval_every: int = 10  # steps between validation losses
+    plateau_tolerance: float = 0.005
+    patience: int = 3
+    backtrack: float = 0.02  # a validation loss this much above the best: revert, halve the step
+    min_step_scale: float = 0.125  # a level ends when its step has shrunk this far and plateaued
+    level_iterations: int = 400
+    min_level_iterations: int = 30
+    max_levels: int = 8
+    level_tolerance: float = 0.01
+    # re-meshing between levels: auto = when ray casting finds back faces or geometry outside
+    # the masks on more than remesh_threshold of the hits
+    remesh: str = "auto"
+    remesh_threshold: float = 0.002
+    # output
+    snapshot_every_s: float = 10.0
+    track_metrics: bool = False  # metrics after every level (time excluded from the budget)
+
+
+# Quality presets (the add-on's Draft / Balanced / Final): overrides of the defaults above;
+# options given explicitly on the command line win over a preset.
+PRESETS = {
+    "draft": {"max_size": 96, "coarse_size": 48, "initial_faces": 2000, "max_levels": 3, "level_iterations": 120,
+              "validation_views": 4},
+    "balanced": {},
+    "final": {"max_size": 256, "initial_faces": 8000, "max_levels": 10, "level_iterations": 600, "views_per_step": 4},
+}

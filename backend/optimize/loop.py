@@ -1,0 +1,354 @@
+"""The reconstruction loop: initialise, then alternate optimisation levels and refinement.
+
+A level optimises the vertices (Laplacian-preconditioned steps, several views per step,
+fixed seeds) at one image size until the validation loss plateaus; steps are backtracked
+when the validation loss rises. Between levels the mesh is re-meshed (ray casting +
+screened Poisson) when it has become inconsistent, subdivided 1-to-4 and simplified to
+the face budget. Levels continue until one stops improving (schedule.keeps_improving),
+the time budget or the iteration cap runs out, or a stop is requested."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+from pathlib import Path
+
+import numpy as np
+
+from ..capture.model import Capture
+from ..geometry.init import initial_mesh
+from ..geometry.mesh import Mesh, load_mesh, save_mesh
+from ..geometry.remesh import poisson_from_samples, sample_surface
+from ..geometry.simplify import FaceBudget
+from ..geometry.subdivide import midpoint
+from ..geometry.topology import inspect, mean_edge_length
+from ..render.scene import RenderSettings
+from .. import fsio
+from .config import ReconstructConfig
+from .material import ConstantMaterial
+from .objective import Objective, seed_for
+from .progress import LockedEmitter, Progress
+from .run_folder import RunFolder, StopRequested
+from .schedule import Plateau, keeps_improving, level_size
+from .steps import Adam, VertexOptimizer, clip_outliers, finite
+from .views import ViewSet, validation_views
+
+METRIC_SAMPLES_TRACKING = 30_000
+
+
+class BudgetSpent(Exception):
+    """The time budget or the iteration cap ran out."""
+
+
+class Reconstruction:
+    def __init__(self, capture: Capture, folder: RunFolder, config: ReconstructConfig, emit,
+                 material=None, resume: bool = False):
+        self.capture, self.folder, self.config = capture, folder, config
+        self.emit = LockedEmitter(emit)
+        self.material = material
+        self.resume = resume
+        self.t0 = time.perf_counter()
+        self.excluded = 0.0  # seconds spent on tracking metrics (not charged to the budget)
+        self.before = 0.0  # seconds of the runs this one resumes
+        self.mesh: Mesh | None = None
+        self.level = 0
+        self.iteration = 0  # optimisation steps over all levels
+        self.level_iteration = 0
+        self.phase = "level"  # where a resume restarts: "level" or "transition"
+        self.budget: FaceBudget | None = None
+        self.levels: list[dict] = []
+        self.skipped = 0
+        self.timings: dict[str, float] = {}
+        self.init_info: dict = {}
+        self.last_snapshot = 0.0
+        self.viewset = ViewSet(capture, config.max_size)
+        self.truth = self._truth()
+        self.progress: Progress | None = None
+
+    # -- clocks and limits --------------------------------------------------------------------------
+    def elapsed(self) -> float:
+        return self.before + time.perf_counter() - self.t0 - self.excluded
+
+    def _fraction(self) -> float:
+        c = self.config
+        estimates = []
+        if c.iterations:
+            estimates.append(self.iteration / c.iterations)
+        if c.time_budget_s:
+            estimates.append(self.elapsed() / c.time_budget_s)
+        if not estimates:
+            estimates.append((self.level + min(1.0, self.level_iteration / c.level_iterations)) / c.max_levels)
+        return min(0.999, max(estimates))
+
+    def _out_of_budget(self) -> bool:
+        c = self.config
+        return bool((c.time_budget_s and self.elapsed() >= c.time_budget_s)
+                    or (c.iterations and self.iteration >= c.iterations))
+
+    def _timed(self, name: str, start: float) -> None:
+        self.timings[name] = round(self.timings.get(name, 0.0) + time.perf_counter() - start, 3)
+
+    # -- public ---------------------------------------------------------------------------------
+    def run(self) -> int:
+        """Run to the end; returns the exit code (0 done, 130 cancelled)."""
+        with Progress(self.emit, self._fraction, self.elapsed) as self.progress:
+            try:
+                self._start()
+                self._optimise()
+            except (KeyboardInterrupt, StopRequested):
+                return self._cancel()
+            self._finish()
+        return 0
+
+    # -- start -------------------------------------------------------------------------------------
+    def _start(self) -> None:
+        c = self.config
+        if self.resume:
+            self._load_state()
+            return
+        start = time.perf_counter()
+        self.emit("stage", stage="init", level=0, faces=0)
+        self.progress.update(force=True, stage="init", level=0, iteration=0, iterations=0, loss=None, faces=0)
+        self.mesh, kind = initial_mesh(self.capture, c.init, c.initial_faces,
+                                       warn=lambda message: self.emit("warning", message=message))
+        if self.material is None:
+            self.material = ConstantMaterial.from_spec(c.material)
+        self.budget = FaceBudget(self.mesh.n_faces)
+        self._timed("init", start)
+        report = inspect(self.mesh)
+        self.init_info = {"kind": kind, "faces": self.mesh.n_faces, "genus": report.genus,
+                          "seconds": round(time.perf_counter() - start, 3)}
+        if self.truth is not None:
+            self.init_info["metrics"] = self._metrics(self.mesh, METRIC_SAMPLES_TRACKING)
+        self._snapshot(loss=None)
+
+    def _load_state(self) -> None:
+        state, material_path = self.folder.load_state()
+        self.mesh = Mesh(state["vertices"], state["faces"])
+        if self.material is None:
+            self.material = ConstantMaterial.load(material_path)
+        else:
+            self.material = type(self.material).load(material_path)
+        self.level, self.iteration = state["level"], state["iteration"]
+        self.phase = state["phase"]
+        self.budget = FaceBudget(**state["budget"])
+        self.levels, self.skipped = state["levels"], state["skipped"]
+        self.timings, self.init_info = state["timings"], state["init"]
+        self.before = state["seconds"]
+        self.emit("stage", stage="resume", level=self.level, faces=self.mesh.n_faces)
+
+    # -- the schedule ------------------------------------------------------------------------------
+    def _optimise(self) -> None:
+        c = self.config
+        if self.phase == "done":
+            return
+        while True:
+            if self.phase == "level":
+                record = self._run_level()
+                self.phase = "transition"
+                self._snapshot(loss=record["loss"])
+                previous = self.levels[-2] if len(self.levels) > 1 else None
+                if (self._out_of_budget() or self.level + 1 >= c.max_levels
+                        or not keeps_improving(previous, record, c.level_tolerance)
+                        or self.budget.limit > c.max_faces):
+                    break
+            self._transition()
+            self.level += 1
+            self.phase = "level"
+
+    def _settings(self) -> RenderSettings:
+        c = self.config
+        return RenderSettings(spp=c.spp, max_depth=c.max_depth, integrator=c.integrator, hide_emitters=True,
+                              sppc=c.spp, sppp=c.sppp, sppi=0)
+
+    def _run_level(self) -> dict:
+        c = self.config
+        start = time.perf_counter()
+        size = level_size(self.level, c.coarse_size, c.max_size)
+        views = self.viewset.at(size)
+        self.emit("stage", stage="geometry", level=self.level, faces=self.mesh.n_faces)
+        objective = Objective(self.mesh, self.material, views, self._settings(), self.capture.environment,
+                              tone=c.tone)
+        lr0 = c.step * mean_edge_length(self.mesh)
+        opt = VertexOptimizer(self.mesh.vertices, self.mesh.faces, c.lambda_, lr0)
+        material_opt = Adam(c.material_lr)
+        val_ids = validation_views(len(views), c.validation_views)
+        val_seed = seed_for(c.seed, 10_000_019, 0)
+        plateau = Plateau(c.plateau_tolerance, c.patience)
+        vertices = self.mesh.vertices.copy()
+        plateau.update(objective.loss(vertices, val_ids, val_seed, c.validation_spp))
+        best = (vertices.copy(), self._latents())
+        first_loss = plateau.best
+        rng = np.random.default_rng([c.seed, self.level])
+        order: list[int] = []
+        self.level_iteration = 0
+        try:
+            while self.level_iteration < c.level_iterations:
+                self.folder.check_stop()
+                if self._out_of_budget():
+                    break
+                ids = []
+                while len(ids) < min(c.views_per_step, len(views)):
+                    if not order:
+                        order = list(rng.permutation(len(views)))
+                    ids.append(int(order.pop()))
+                geometry = self.level > 0 or self.level_iteration >= self._warmup()
+                loss, grad, mgrads = objective.loss_and_grad(vertices, ids, seed_for(c.seed, self.iteration, 0),
+                                                             geometry)
+                self.iteration += 1
+                self.level_iteration += 1
+                if not (math.isfinite(loss) and finite(*([grad] if geometry else []), *mgrads.values())):
+                    self._skip("non-finite loss or gradient")
+                    continue
+                if geometry:
+                    new_vertices = opt.step(clip_outliers(grad, c.clip))
+                    if not finite(new_vertices):
+                        opt.set_vertices(vertices)
+                        self._skip("non-finite vertex positions after a step")
+                        continue
+                    vertices = new_vertices
+                if mgrads:
+                    latents = self._latents()
+                    self.material.load_parameters(material_opt.step(latents, mgrads))
+                self.progress.update(stage="geometry", level=self.level, iteration=self.level_iteration,
+                                     iterations=c.level_iterations, loss=loss, faces=self.mesh.n_faces)
+                if self.level_iteration % c.eval_every == 0:
+                    val = objective.loss(vertices, val_ids, val_seed, c.validation_spp)
+                    if plateau.update(val):
+                        best = (vertices.copy(), self._latents())
+                    elif val > plateau.best * (1 + c.backtrack) or not math.isfinite(val):
+                        vertices = best[0].copy()  # backtrack: the step was too long
+                        self.material.load_parameters(best[1])
+                        opt.set_vertices(vertices)
+                        opt.reset_moments()
+                        opt.lr *= 0.5
+                    settled = self.level_iteration >= c.min_level_iterations + (0 if self.level else self._warmup())
+                    if plateau.converged and settled:
+                        if opt.lr <= lr0 * c.min_step_scale * 1.0001:
+                            break
+                        opt.lr *= 0.5
+                        plateau.stale = 0
+                if time.perf_counter() - self.last_snapshot >= c.snapshot_every_s:
+                    self.mesh = Mesh(vertices, self.mesh.faces)
+                    self._snapshot(loss=loss)
+        finally:
+            # keep the best surface found so far, also when cancelled
+            self.mesh = Mesh(best[0], self.mesh.faces)
+            self.material.load_parameters(best[1])
+            self._timed("geometry", start)
+        record = {"level": self.level, "size": size, "faces": self.mesh.n_faces, "iterations": self.level_iteration,
+                  "loss_start": first_loss, "loss": plateau.best, "step_final": opt.lr / lr0,
+                  "seconds": round(time.perf_counter() - start, 3), "elapsed": round(self.elapsed(), 3)}
+        if self.truth is not None and self.config.track_metrics:
+            record["metrics"] = self._metrics(self.mesh, METRIC_SAMPLES_TRACKING)
+        self.levels.append(record)
+        return record
+
+    def _warmup(self) -> int:
+        """Material-only steps that open level 0 when the material is estimated: a wrong
+        material makes the geometry compensate (a too-dark material inflates the mesh
+        toward the lights), so the material gets a head start."""
+        return self.config.material_warmup if self.material.trainable else 0
+
+    def _latents(self) -> dict[str, np.ndarray]:
+        return {n: np.array(z, np.float64) for n, z in self.material.parameters().items()}
+
+    def _skip(self, why: str) -> None:
+        self.skipped += 1
+        self.emit("warning", message=f"step {self.iteration} skipped: {why} ({self.skipped} so far)")
+
+    # -- between levels ------------------------------------------------------------------------------
+    def _transition(self) -> None:
+        """Re-mesh when needed, subdivide 1-to-4, honour the face budget."""
+        c = self.config
+        old = self.mesh
+        if c.remesh != "never":
+            start = time.perf_counter()
+            self.emit("stage", stage="remesh", level=self.level, faces=old.n_faces)
+            self.progress.update(force=True, stage="remesh", level=self.level, faces=old.n_faces)
+            cameras = [v.camera for v in self.viewset.views]
+            masks = [v.mask for v in self.viewset.views] if self.capture.has_masks else None
+            samples = sample_surface(old, cameras, masks)
+            hits = len(samples.points) + samples.back_faces + samples.outside_masks
+            share = (samples.back_faces + samples.outside_masks) / max(hits, 1)
+            remeshed = None
+            if c.remesh == "always" or share > c.remesh_threshold:
+                target = self.budget.next_target(old.n_faces)
+                remeshed = poisson_from_samples(samples, old, target)
+                self.material.on_remesh(remeshed)
+                self.mesh = remeshed
+            self._timed("remesh", start)
+            self.levels[-1]["remesh"] = {"inconsistent_share": round(share, 5), "back_faces": samples.back_faces,
+                                         "outside_masks": samples.outside_masks, "applied": remeshed is not None,
+                                         "faces": None if remeshed is None else remeshed.n_faces,
+                                         "genus": None if remeshed is None else inspect(remeshed).genus}
+            if remeshed is not None:
+                return
+        start = time.perf_counter()
+        self.emit("stage", stage="refine", level=self.level, faces=old.n_faces)
+        fine, _ = midpoint(old)
+        self.mesh = self.budget.enforce(fine)
+        if self.mesh is fine:
+            self.material.on_subdivide(old, fine)
+        else:
+            self.material.on_remesh(self.mesh)
+        self._timed("refine", start)
+
+    # -- output --------------------------------------------------------------------------------------
+    def _state(self) -> dict:
+        return {"vertices": self.mesh.vertices, "faces": self.mesh.faces, "level": self.level,
+                "iteration": self.iteration, "phase": self.phase, "budget": self.budget.state(),
+                "levels": self.levels, "skipped": self.skipped, "timings": self.timings,
+                "init": self.init_info, "seconds": round(self.elapsed(), 3)}
+
+    def _snapshot(self, loss) -> str:
+        start = time.perf_counter()
+        info = {"iteration": self.iteration, "stage": self.phase, "level": self.level,
+                "faces": self.mesh.n_faces, "loss": loss}
+        rel = self.folder.snapshot(self.material.display(self.mesh), info, self._state(), self.material)
+        self.emit("snapshot", path=rel, iteration=self.iteration, faces=self.mesh.n_faces, loss=loss)
+        self.last_snapshot = time.perf_counter()
+        self._timed("snapshots", start)
+        return rel
+
+    def _cancel(self) -> int:
+        rel = None
+        if self.mesh is not None and self.budget is not None:
+            try:
+                rel = self._snapshot(loss=self.levels[-1]["loss"] if self.levels else None)
+            except (KeyboardInterrupt, StopRequested):  # a second request while writing: the last one stands
+                rel = None
+        self.emit("cancelled", snapshot=rel)
+        return 130
+
+    def _finish(self) -> None:
+        self.phase = "done"
+        self._snapshot(loss=self.levels[-1]["loss"] if self.levels else None)
+        save_mesh(self.folder.path / "result.ply", self.mesh)
+        metrics = self._metrics(self.mesh) if self.truth is not None else None
+        report = {
+            "capture": str(self.capture.root), "settings": dataclasses.asdict(self.config),
+            "init": self.init_info, "levels": self.levels,
+            "result": {"faces": self.mesh.n_faces, "vertices": self.mesh.n_vertices,
+                       "genus": inspect(self.mesh).genus, "iterations": self.iteration},
+            "losses": [lv["loss"] for lv in self.levels], "skipped_steps": self.skipped,
+            "timings": {**self.timings, "total": round(self.elapsed(), 3), "metrics_excluded": round(self.excluded, 3)},
+            "material": self.material.summary(), "metrics": metrics,
+            "premultiplied_views": self.viewset.premultiplied,
+        }
+        fsio.write_json(self.folder.path / "report.json", report)
+        self.emit("done", result="result.ply", report="report.json", metrics=metrics)
+
+    def _truth(self) -> Mesh | None:
+        rel = self.capture.ground_truth.get("mesh") if self.capture.ground_truth else None
+        path = self.capture.path(rel) if rel else None
+        return load_mesh(path) if path is not None and Path(path).is_file() else None
+
+    def _metrics(self, mesh: Mesh, samples: int | None = None) -> dict:
+        from ..metrics import geometry_metrics
+
+        start = time.perf_counter()
+        out = geometry_metrics(mesh, self.truth, **({"samples": samples} if samples else {}))
+        self.excluded += time.perf_counter() - start
+        return {k: round(v, 6) if isinstance(v, float) else v for k, v in out.items()}

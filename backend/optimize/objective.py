@@ -1,0 +1,106 @@
+"""The objective: masked squared error between path-traced renders and the target views.
+
+With emitters hidden, a render is black outside the object, so the squared error against
+mask x image over the whole frame is the paper's masked loss (silhouette errors included).
+Projective integrators give the silhouette gradients.
+
+By default both images pass through the tone curve t(x) = log(1 + x / s) first (s = the
+mean object radiance of the targets). Plain MSE (``tone="linear"``, the paper's loss) lets
+specular highlights dominate: measured on the paper-style dragon at 64 px, its per-vertex
+gradient is so heavy-tailed that ten vertices carry half its energy, and two seeds' smoothed
+gradients correlate at 0.15 (0.19 with a 1024-spp reference); through the log curve the
+same numbers are 0.33 and 0.60."""
+
+from __future__ import annotations
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+
+from ..geometry.mesh import Mesh
+from ..render.scene import RenderSettings, SceneRenderer
+from .views import View
+
+VERTICES = "object.vertex_positions"
+
+
+def seed_for(run_seed: int, step: int, view: int) -> int:
+    """Distinct, reproducible sampler seeds for every (run, step, view)."""
+    return (run_seed * 1_000_003 + step * 1009 + view) % (1 << 31)
+
+
+class GradientRenderer(SceneRenderer):
+    """A SceneRenderer whose differentiable renders use the integrator's own sample counts
+    (``sppc`` for the interior, ``sppp`` for silhouettes) rather than one runtime count."""
+
+    def render_split(self, view: int, seed: int, params):
+        self._set_lights(view)
+        return mi.render(self.scene, params, sensor=self.sensors[view], seed=seed, spp=0)
+
+
+def tone_scale(views: list[View]) -> float:
+    """Mean radiance over the targets' object pixels (the tone curve's knee)."""
+    values = [v.target[(v.mask > 0.5) if v.mask is not None else (v.target.max(-1) > 0)] for v in views]
+    values = np.concatenate([x.ravel() for x in values if x.size])
+    return float(max(values.mean(), 1e-6)) if values.size else 1.0
+
+
+class Objective:
+    """Loss and gradients for one mesh connectivity at one image size."""
+
+    def __init__(self, mesh: Mesh, material, views: list[View], settings: RenderSettings,
+                 environment=None, env_pixels: np.ndarray | None = None, tone: str = "log"):
+        self.material = material
+        self.views = views
+        self.settings = settings
+        self.renderer = GradientRenderer(mesh, material.field, [v.camera for v in views], [v.lights for v in views],
+                                         environment, settings, env_pixels=env_pixels)
+        self.scale = tone_scale(views) if tone == "log" else None
+        self.targets = [mi.TensorXf(np.ascontiguousarray(self._tone_np(v.target), np.float32)) for v in views]
+        self.targets_np = [self._tone_np(np.asarray(v.target, np.float32)) for v in views]
+
+    def _tone(self, img):
+        return img if self.scale is None else dr.log(1.0 + dr.maximum(img, 0.0) * (1.0 / self.scale))
+
+    def _tone_np(self, img: np.ndarray) -> np.ndarray:
+        return img if self.scale is None else np.log1p(np.maximum(img, 0.0) / self.scale)
+
+    def _set_vertices(self, vertices) -> None:
+        self.renderer.params[VERTICES] = vertices
+        self.renderer.params.update()
+
+    def loss_and_grad(self, vertices: np.ndarray, view_ids: list[int], step_seed: int,
+                      geometry: bool = True) -> tuple[float, np.ndarray | None, dict[str, np.ndarray]]:
+        """Mean masked MSE over ``view_ids`` and its gradients: (loss, dLoss/dvertices (V, 3),
+        {material latent: gradient})."""
+        v = mi.Float(np.asarray(vertices, np.float32).ravel())
+        if geometry:
+            dr.enable_grad(v)
+        self._set_vertices(v)
+        latents = self.material.parameters()
+        trainable = {n: latents[n] for n in self.material.trainable}
+        for z in trainable.values():
+            dr.enable_grad(z)
+        params = self.material.attach(self.renderer.params)
+        total = mi.Float(0.0)
+        for k, view in enumerate(view_ids):
+            img = self.renderer.render_split(view, seed=step_seed + k, params=params)
+            total += dr.mean(dr.square(self._tone(img) - self.targets[view]), axis=None).array
+        total /= len(view_ids)
+        dr.backward(total)
+        grad_v = np.array(dr.grad(v), np.float64).reshape(-1, 3) if geometry else None
+        grads = {n: np.array(dr.grad(z), np.float64) for n, z in trainable.items()}
+        for z in trainable.values():
+            dr.disable_grad(z)
+        self._set_vertices(mi.Float(np.asarray(vertices, np.float32).ravel()))
+        return float(total[0]), grad_v, grads
+
+    def loss(self, vertices: np.ndarray, view_ids: list[int], seed: int, spp: int | None = None) -> float:
+        """Mean masked MSE without gradients (fixed seed: comparable between calls)."""
+        self._set_vertices(mi.Float(np.asarray(vertices, np.float32).ravel()))
+        total = 0.0
+        with dr.suspend_grad():
+            for view in view_ids:
+                img = self._tone_np(np.array(self.renderer.render(view, seed=seed + view, spp=spp)))
+                total += float(np.mean((img - self.targets_np[view]) ** 2))
+        return total / len(view_ids)

@@ -1,0 +1,63 @@
+"""Progress events at least once a second, even while a long step (re-meshing) runs."""
+
+from __future__ import annotations
+
+import threading
+import time
+
+
+class LockedEmitter:
+    """Serialises events from the run loop and the heartbeat thread."""
+
+    def __init__(self, emit):
+        self.inner = emit
+        self.lock = threading.Lock()
+
+    def __call__(self, event: str, **fields) -> dict:
+        with self.lock:
+            return self.inner(event, **fields)
+
+    @property
+    def start(self) -> float:
+        return self.inner.start
+
+
+class Progress:
+    """Holds the latest progress fields; emits them when updated (at most ``min_gap`` apart)
+    and from a heartbeat thread whenever ``interval`` passes without an event."""
+
+    def __init__(self, emit: LockedEmitter, fraction, elapsed, interval: float = 1.0, min_gap: float = 0.25):
+        self.emit, self.fraction, self.elapsed = emit, fraction, elapsed
+        self.interval, self.min_gap = interval, min_gap
+        self.fields: dict = {}
+        self.last = 0.0
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._beat, daemon=True)
+
+    def __enter__(self):
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc):
+        self._stop.set()
+        self._thread.join(timeout=2)
+
+    def update(self, force: bool = False, **fields) -> None:
+        self.fields.update(fields)
+        if force or time.perf_counter() - self.last >= self.min_gap:
+            self._send()
+
+    def _send(self) -> None:
+        if not self.fields:
+            return
+        f = min(max(float(self.fraction()), 0.0), 1.0)
+        seconds = self.elapsed()
+        eta = seconds * (1 - f) / f if f > 1e-3 else None
+        self.last = time.perf_counter()
+        self.emit("progress", **self.fields, seconds=round(seconds, 2), fraction=round(f, 4),
+                  eta_s=None if eta is None else round(eta, 1))
+
+    def _beat(self) -> None:
+        while not self._stop.wait(0.2):
+            if time.perf_counter() - self.last >= self.interval:
+                self._send()
