@@ -14,8 +14,8 @@ from tests.helpers import run_cli
 
 @pytest.fixture(scope="session")
 def tiny_capture(tmp_path_factory) -> Path:
-    """The built-in object, 8 views at 48 px, paper lights, 2 held-out views (a few seconds)."""
+    """The built-in object, 8 views at 48 px (64 spp), paper lights, 2 held-out views (a few seconds)."""
     out = tmp_path_factory.mktemp("tiny") / "capture"
-    run_cli("synth", "--out", out, "--views", 8, "--resolution", 48, "--spp", 16, "--held-out", 2,
+    run_cli("synth", "--out", out, "--views", 8, "--resolution", 48, "--spp", 64, "--held-out", 2,
             check=True)
     return out

@@ -64,9 +64,12 @@ def run(args) -> int:
         print(f"[synth] reusing {capture}")
     _follow(["reconstruct", str(capture), "--out", str(run_dir), "--time-budget", str(args.minutes),
              "--overwrite"], "reconstruct")
+    from .. import fsio
+    from .evaluate import evaluate, json_safe, table
+
+    metrics = evaluate(run_dir, capture)
     report = out / "evaluation.json"
-    _follow(["evaluate", str(run_dir), "--truth", str(capture), "--out", str(report)], "evaluate")
-    metrics = json.loads(report.read_text())
-    print(json.dumps(metrics, indent=2))
-    print(f"result: {run_dir / 'result.ply'}\nreport: {run_dir / 'report.json'}\nmetrics: {report}")
+    fsio.write_json(report, json_safe(metrics))
+    print(table(metrics))
+    print(f"result:  {run_dir / 'result.ply'}\nreport:  {run_dir / 'report.json'}\nmetrics: {report}")
     return 0

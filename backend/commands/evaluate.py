@@ -146,7 +146,33 @@ def evaluate(prediction: str | Path, truth: str | Path, samples: int = geo.DEFAU
         report["albedo"] = {"rmse": albedo_rmse(pa, ga), "rmse_scaled": albedo_rmse(pa, ga, fit_scale=True)}
     if renders is not None:
         report["images"] = _view_metrics(capture, Path(renders), views)
+    elif (pred_path.parent / "snapshot.json").is_file() and capture is not None:
+        _run_view_metrics(report, pred_path.parent, capture, gt, samples, seed)
     return report
+
+
+def _run_view_metrics(report: dict, run: Path, capture, gt: Mesh, samples: int, seed: int) -> None:
+    """For a run folder: render its final display mesh (which carries the material) at the
+    truth's held-out and relit views into RUN/renders/<set>/, and score them and its albedo."""
+    import json
+
+    from .. import variant
+    from ..capture.format import load_capture
+    from ..capture.images import write_image
+
+    variant.choose()
+    from ..render.views import render_views
+
+    display = _mesh(run / json.loads((run / "snapshot.json").read_text())["mesh"], "display")
+    if display.vertex_colors is not None and gt.vertex_colors is not None and "albedo" not in report:
+        pa, ga = geo.corresponding_albedo(display, gt, samples, seed)
+        report["albedo"] = {"rmse": albedo_rmse(pa, ga), "rmse_scaled": albedo_rmse(pa, ga, fit_scale=True)}
+    for name in [s for s in VIEW_SETS if capture.ground_truth.get(s)]:
+        views = load_capture(capture.root / capture.ground_truth[name])
+        out = run / "renders" / name
+        for frame, image in render_views(display, views).items():
+            write_image(out / f"{frame}.exr", image)
+        report.setdefault("views", {})[name] = _view_metrics(capture, out, name)
 
 
 def json_safe(value):
@@ -176,12 +202,11 @@ def table(report: dict) -> str:
     if "albedo" in report:
         rows.append(("albedo_rmse", f"{report['albedo']['rmse']:.4f}",
                      f"{report['albedo']['rmse_scaled']:.4f} after per-channel scale"))
-    if "images" in report:
-        im = report["images"]
-        rows.append(("psnr", f"{im['psnr']:.2f} dB", f"{len(im['views'])} {im['set']} views, sRGB"))
-        rows.append(("ssim", f"{im['ssim']:.4f}", ""))
+    for im in ([report["images"]] if "images" in report else []) + list(report.get("views", {}).values()):
+        rows.append((f"psnr {im['set']}", f"{im['psnr']:.2f} dB", f"{len(im['views'])} views, sRGB"))
+        rows.append((f"ssim {im['set']}", f"{im['ssim']:.4f}", ""))
     width = max(len(r[1]) for r in rows)
-    return "\n".join(f"{name:<12} {value:>{width}}  {note}".rstrip() for name, value, note in rows)
+    return "\n".join(f"{name:<14} {value:>{width}}  {note}".rstrip() for name, value, note in rows)
 
 
 def run(args) -> int:
