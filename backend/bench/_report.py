@@ -1,0 +1,189 @@
+"""The sweep's report: ``report.md`` (fronts, knob effects, presets), ``pareto_<scene>.png``
+(accuracy against time with the front) and ``results.json`` (every measured row)."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+from .. import fsio
+from . import _pareto
+
+PRESET_NAMES = ("draft", "balanced", "final")
+
+
+def _fmt(value, digits: int = 1) -> str:
+    if value is None or (isinstance(value, float) and not math.isfinite(value)):
+        return "–"
+    return f"{value:.{digits}f}"
+
+
+def ok_rows(rows: list[dict]) -> list[dict]:
+    """Rows of finished runs with both a time and an F1."""
+    return [r for r in rows if r.get("rc") == 0 and r.get("f1") is not None]
+
+
+def plot(rows: list[dict], scene: str, path: Path) -> None:
+    """F1@0.01 and relit PSNR against wall-clock seconds, the front drawn as a staircase."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
+    for ax, key, label in ((axes[0], "f1", "F1@0.01 (%)"), (axes[1], "relit_psnr", "relit PSNR (dB)")):
+        pts = [r for r in rows if r.get(key) is not None]
+        if not pts:
+            ax.set_visible(False)
+            continue
+        idx = _pareto.front([r["seconds"] for r in pts], [r[key] for r in pts])
+        on = set(idx)
+        for i, r in enumerate(pts):
+            preset = r["name"] in PRESET_NAMES
+            ax.scatter(r["seconds"], r[key], s=60 if preset else 28, marker="D" if preset else "o",
+                       color="tab:red" if i in on else "tab:gray", zorder=3, edgecolors="k", linewidths=0.4)
+            ax.annotate(r["name"].replace("draft:", ""), (r["seconds"], r[key]), fontsize=7,
+                        xytext=(4, 3), textcoords="offset points", color="k" if i in on else "0.45")
+        xs = [pts[i]["seconds"] for i in idx]
+        ys = [pts[i][key] for i in idx]
+        ax.step(xs + [max(r["seconds"] for r in pts) * 1.15], ys + ys[-1:], where="post", color="tab:red",
+                lw=1.2, label="Pareto front")
+        ax.set_xscale("log")
+        ax.set_xlabel("wall-clock seconds (log)")
+        ax.set_ylabel(label)
+        ax.grid(True, which="both", alpha=0.3)
+        ax.legend(loc="lower right", fontsize=8)
+    fig.suptitle(f"{scene}: accuracy against time ({len(rows)} runs)")
+    fig.tight_layout()
+    with fsio.atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=110, format="png")
+    plt.close(fig)
+
+
+def _front_table(rows: list[dict]) -> list[str]:
+    idx = _pareto.front([r["seconds"] for r in rows], [r["f1"] for r in rows])
+    lines = ["| setting | wall s | CPU s | peak MB | Chamfer-L1 | F1@0.01 | novel PSNR | relit PSNR | load |",
+             "|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
+    for i in idx:
+        r = rows[i]
+        lines.append(f"| {r['name']} | {_fmt(r['seconds'], 0)} | {_fmt(r.get('cpu_seconds'), 0)} | "
+                     f"{_fmt(r.get('peak_mb'), 0)} | {_fmt(r.get('chamfer_l1'), 4)} | {_fmt(r['f1'])} | "
+                     f"{_fmt(r.get('novel_psnr'))} | {_fmt(r.get('relit_psnr'))} | "
+                     f"{_fmt(r.get('load_before'))}–{_fmt(r.get('load_after'))} |")
+    return lines
+
+
+def _all_table(rows: list[dict]) -> list[str]:
+    lines = ["| setting | wall s | CPU s | peak MB | F1@0.01 | Chamfer-L1 | novel PSNR | relit PSNR | front |",
+             "|---|---:|---:|---:|---:|---:|---:|---:|:-:|"]
+    on = set(_pareto.front([r["seconds"] for r in rows], [r["f1"] for r in rows]))
+    for i in sorted(range(len(rows)), key=lambda i: rows[i]["seconds"]):
+        r = rows[i]
+        lines.append(f"| {r['name']} | {_fmt(r['seconds'], 0)} | {_fmt(r.get('cpu_seconds'), 0)} | "
+                     f"{_fmt(r.get('peak_mb'), 0)} | {_fmt(r['f1'])} | {_fmt(r.get('chamfer_l1'), 4)} | "
+                     f"{_fmt(r.get('novel_psnr'))} | {_fmt(r.get('relit_psnr'))} | {'●' if i in on else ''} |")
+    return lines
+
+
+def _knob_lines(rows: list[dict]) -> list[str]:
+    effects = _pareto.knob_effects(rows, "draft")
+    if not effects:
+        return []
+    lines = ["| knob | from → to | Δ wall s | Δ F1 | F1 points per minute |", "|---|---|---:|---:|---:|"]
+    for e in effects:
+        lines.append(f"| {e['knob']} | {e['from']} → {e['to']} | {e['d_seconds']:+.0f} | {e['d_score']:+.1f} | "
+                     f"{_fmt(60 * e['per_second'], 2)} |")
+    return lines
+
+
+def _step_lines(rows: list[dict]) -> list[str]:
+    steps = _pareto.front_steps(rows)
+    if not steps:
+        return []
+    lines = ["| at budget (s) | from → to | + s | + F1 | F1 per minute | knobs changed |",
+             "|---:|---|---:|---:|---:|---|"]
+    for s in steps:
+        knobs = ", ".join(f"{k} {a}→{b}" for k, (a, b) in s["knobs"].items()) or "(same knobs; noise)"
+        lines.append(f"| {s['budget_s']:.0f} | {s['from']} → {s['to']} | {s['d_seconds']:.0f} | "
+                     f"{s['d_score']:+.1f} | {_fmt(60 * s['per_second'], 2)} | {knobs} |")
+    return lines
+
+
+def _presets_lines(presets: dict) -> list[str]:
+    lines = [f"Calibration file `backend/presets.json`, measured on {presets.get('machine')} "
+             f"({presets.get('measured', '?')}, scene {presets.get('scene', '?')}).", "",
+             "| preset | expected min | expected F1@0.01 | target | met | recommended overrides |",
+             "|---|---:|---:|---|:-:|---|"]
+    for name, p in presets.get("presets", {}).items():
+        target = p.get("target") or {}
+        goal = (f"F1 ≥ {target['f1']:.2f} in ≤ {target['minutes']:g} min" if target else "–")
+        met = "–" if target.get("met") is None else ("yes" if target.get("met") else "no")
+        rec = p.get("recommended_overrides") or {}
+        rec_text = ", ".join(f"{k}={v}" for k, v in rec.items()) or "none"
+        if rec and p.get("recommended_expected_minutes") is not None:
+            rec_text += (f" (measured {p['recommended_expected_minutes']:.1f} min, "
+                         f"F1 {p['recommended_expected_f1']:.3f})")
+        lines.append(f"| {name} | {_fmt(p.get('expected_minutes'), 1)} | {_fmt(p.get('expected_f1'), 3)} | {goal} | "
+                     f"{met} | {rec_text} |")
+    return lines
+
+
+def write(rows: list[dict], out: Path, scenes: dict, presets_path: Path | None = None) -> Path:
+    """Write the report for ``rows`` into ``out``; returns the path of ``report.md``."""
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    fsio.write_json(out / "results.json", rows)
+    good = ok_rows(rows)
+    machines = {json.dumps(r.get("machine"), sort_keys=True): r.get("machine") for r in rows if r.get("machine")}
+    loads = [x for r in good for x in (r.get("load_before"), r.get("load_after")) if x is not None]
+    dates = sorted(r["measured"] for r in rows if r.get("measured"))
+    md = ["# Accuracy against time", "",
+          "Written by `python -m backend bench sweep` (see `backend/bench/sweep.py`); every measured run is "
+          "in `results.json`. Time is the wall clock of the whole `reconstruct` process (start-up, "
+          "initialisation and optimisation; scoring excluded), accuracy is F1@0.01 (percent of surface "
+          "points within 1% of the object's size, both ways) against the true mesh; novel-view and relit "
+          "PSNR score the result rendered with its estimated material at held-out cameras (relit: under a "
+          "second environment alone).", ""]
+    for m in machines.values():
+        from .sweep import machine_line
+
+        md.append(f"- Machine: {machine_line(m)} (Mitsuba {m.get('mitsuba', '?')}, {m.get('memory_gib', '?')} GiB).")
+    if loads:
+        md.append(f"- 1-minute load average around the runs: {min(loads):.1f}–{max(loads):.1f} on "
+                  f"{next(iter(machines.values()), {}).get('cores', '?')} cores. Other jobs shared the CPU, so "
+                  "wall-clock times are inflated by up to that factor; CPU seconds of the process are given too.")
+    if dates:
+        md.append(f"- Measured {dates[0]} to {dates[-1]}.")
+    failed = [r for r in rows if r.get("rc") != 0]
+    if failed:
+        md.append(f"- Failed runs (not plotted): {', '.join(r['scene'] + '/' + r['name'] for r in failed)}.")
+    md.append("")
+    by_scene: dict[str, list[dict]] = {}
+    for r in good:
+        by_scene.setdefault(r["scene"], []).append(r)
+    for scene, srows in by_scene.items():
+        png = out / f"pareto_{scene}.png"
+        plot(srows, scene, png)
+        desc = scenes[scene].description if scene in scenes else ""
+        md += [f"## {scene}", "", desc + ".", "", f"![{scene}: accuracy against time]({png.name})", "",
+               "Pareto front (no other run was both faster and more accurate):", ""]
+        md += _front_table(srows) + [""]
+        knob = _knob_lines(srows)
+        if knob:
+            md += ["One knob at a time around Draft (best accuracy per second first):", ""] + knob + [""]
+        steps = _step_lines(srows)
+        if steps:
+            md += ["Along the front: what the next budget buys:", ""] + steps + [""]
+        md += ["<details><summary>All runs</summary>", ""] + _all_table(srows) + ["", "</details>", ""]
+    presets_path = presets_path or Path(__file__).resolve().parents[1] / "presets.json"
+    if presets_path.is_file():
+        try:
+            presets = json.loads(presets_path.read_text())
+        except ValueError:
+            presets = {}
+        if presets.get("presets"):
+            md += ["## Presets", ""] + _presets_lines(presets) + [""]
+    path = out / "report.md"
+    fsio.write_text(path, "\n".join(md))
+    return path

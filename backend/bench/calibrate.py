@@ -1,0 +1,184 @@
+"""Calibrate the quality presets on this machine: time and accuracy of Draft/Balanced/Final on the dragon.
+
+``python -m backend bench calibrate [--presets draft,balanced,final] [--out FILE]`` runs
+each preset on the dragon benchmark scene (synthesised once; see ``bench sweep``) exactly as
+``reconstruct --preset NAME`` would, and writes the calibration file (default
+``backend/presets.json``, which the Blender panel reads)::
+
+    {"machine": "CPU, N cores, variant", "machine_details": {...}, "measured": ..., "scene": ...,
+     "presets": {"draft": {"expected_minutes": ..., "expected_f1": ..., ...}, ...}}
+
+``expected_f1`` is F1@0.01 as a fraction (0.9 = 90 %). ``--from-results FILE`` writes the
+file from a sweep's ``results.jsonl`` instead of running anything; then each preset also
+gets ``recommended_overrides``: the knobs of the most accurate swept setting that fits the
+preset's time target, when it beats the preset by more than ``--margin`` F1 points.
+:func:`preset_for_budget` picks a preset for a time budget from the file."""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+from .. import fsio
+
+REPO = Path(__file__).resolve().parents[2]
+PRESETS_FILE = REPO / "backend" / "presets.json"
+SCENE = "dragon"
+# time (minutes) and F1@0.01 (percent) each preset is meant to reach on the dragon; None: no limit
+TARGETS = {"draft": (3.0, 80.0), "balanced": (10.0, 90.0), "final": (None, None)}
+CLI_OPTIONS = {"max_size": "--max-size", "spp": "--spp", "views_per_step": "--views-per-step",
+               "iterations": "--iterations", "initial_faces": "--initial-faces", "max_levels": "--max-levels",
+               "time_budget_min": "--time-budget", "init": "--init"}
+
+
+def load(path: Path = PRESETS_FILE) -> dict:
+    """The calibration file, or {} when it is absent or unreadable."""
+    try:
+        doc = json.loads(Path(path).read_text())
+    except (OSError, ValueError):
+        return {}
+    return doc if isinstance(doc, dict) and isinstance(doc.get("presets"), dict) else {}
+
+
+def preset_for_budget(minutes: float, path: Path = PRESETS_FILE, default: str = "balanced") -> str:
+    """The most accurate calibrated preset whose expected time fits ``minutes``.
+
+    When none fits, the fastest calibrated preset (it will run against the budget); without a
+    calibration file (or with no usable entries), ``default``."""
+    entries = {name: p for name, p in load(path).get("presets", {}).items()
+               if isinstance(p, dict) and isinstance(p.get("expected_minutes"), (int, float))}
+    if not entries:
+        return default
+    fits = [n for n, p in entries.items() if p["expected_minutes"] <= minutes]
+    if fits:
+        return max(fits, key=lambda n: (entries[n].get("expected_f1") or 0.0, -entries[n]["expected_minutes"]))
+    return min(entries, key=lambda n: entries[n]["expected_minutes"])
+
+
+def entry(row: dict) -> dict:
+    """A preset's calibration entry from a sweep row."""
+    out = {"expected_minutes": round(row["seconds"] / 60, 2), "expected_f1": round(row["f1"] / 100, 4),
+           "cpu_minutes": round(row["cpu_seconds"] / 60, 2), "chamfer_l1": row.get("chamfer_l1"),
+           "f1_005": None if row.get("f1_005") is None else round(row["f1_005"] / 100, 4),
+           "novel_psnr": row.get("novel_psnr"), "relit_psnr": row.get("relit_psnr"),
+           "peak_memory_mb": row.get("peak_mb"), "load_average": [row.get("load_before"), row.get("load_after")],
+           "runs": row.get("repeats", 1), "settings": row["knobs"]}
+    return out
+
+
+def _target(name: str, row: dict) -> dict | None:
+    minutes, f1 = TARGETS.get(name, (None, None))
+    if minutes is None:
+        return None
+    return {"minutes": minutes, "f1": f1 / 100, "met": bool(row["seconds"] / 60 <= minutes and row["f1"] >= f1)}
+
+
+def overrides(preset_knobs: dict, knobs: dict) -> dict:
+    """The ``reconstruct`` options that turn a preset's knobs into ``knobs``."""
+    out = {}
+    for k, v in knobs.items():
+        if preset_knobs.get(k) == v:
+            continue
+        if k == "bounces":
+            out.update({"--integrator": "direct_projective"} if v == 1 else
+                       {"--integrator": "prb_projective", "--max-depth": v + 1})
+        elif k in CLI_OPTIONS and v is not None:
+            out[CLI_OPTIONS[k]] = v
+        else:
+            out[k] = v  # a config field without an option (e.g. level_iterations)
+    return out
+
+
+def recommend(name: str, preset_row: dict, rows: list[dict], margin: float) -> dict:
+    """The most accurate row of ``rows`` within the preset's time target (or its own time, for
+    a preset without a target), when it beats the preset by more than ``margin`` F1 points."""
+    minutes = TARGETS.get(name, (None, None))[0]
+    limit = 60 * minutes if minutes is not None else preset_row["seconds"]
+    fitting = [r for r in rows if r["seconds"] <= limit and r["name"] != name]
+    if not fitting:
+        return {}
+    best = max(fitting, key=lambda r: r["f1"])
+    if best["f1"] <= preset_row["f1"] + margin:
+        return {}
+    return {"recommended_overrides": overrides(preset_row["knobs"], best["knobs"]),
+            "recommended_from": best["name"], "recommended_expected_minutes": round(best["seconds"] / 60, 2),
+            "recommended_expected_f1": round(best["f1"] / 100, 4)}
+
+
+def calibration(rows: list[dict], machine: dict, scene_description: str, margin: float = 1.0) -> dict:
+    """The calibration document from sweep rows of the dragon scene (presets named as in PRESETS)."""
+    from .sweep import machine_line
+
+    good = [r for r in rows if r.get("rc") == 0 and r.get("f1") is not None]
+    presets = {}
+    for name in TARGETS:
+        row = next((r for r in good if r["name"] == name), None)
+        if row is None:
+            continue
+        presets[name] = entry(row)
+        target = _target(name, row)
+        if target:
+            presets[name]["target"] = target
+        presets[name].update(recommend(name, row, good, margin))
+    dates = sorted(r["measured"] for r in good if r.get("measured"))
+    return {"machine": machine_line(machine), "machine_details": machine,
+            "measured": dates[-1] if dates else time.strftime("%Y-%m-%dT%H:%M:%S"),
+            "scene": f"{SCENE}: {scene_description}",
+            "metric": "expected_f1 is F1@0.01 as a fraction; expected_minutes is the wall clock of the whole "
+                      "reconstruct process (median of the runs); load_average is the 1-minute load before/after",
+            "presets": presets}
+
+
+def add_arguments(parser) -> None:
+    parser.add_argument("--presets", default="draft,balanced,final", help="presets to run (default: %(default)s)")
+    parser.add_argument("--out", type=Path, default=PRESETS_FILE, help="calibration file (default: %(default)s)")
+    parser.add_argument("--work", type=Path, default=REPO / "runs" / "bench-calibrate",
+                        help="work folder for the scene and the runs (default: %(default)s)")
+    parser.add_argument("--from-results", type=Path, metavar="RESULTS",
+                        help="write the file from a sweep's results.jsonl (dragon rows) instead of running")
+    parser.add_argument("--margin", type=float, default=1.0,
+                        help="F1 points a swept setting must gain to be recommended (default: %(default)s)")
+    parser.add_argument("--repeats", type=int, default=1, help="runs per preset (the median time is kept)")
+    parser.add_argument("--variant", help="Mitsuba variant (default: automatic)")
+
+
+def run(args) -> int:
+    from .. import variant
+    from ..errors import InputError, require
+    from ..events import Emitter
+    from ._sweep_scenes import SCENES, ensure
+    from .sweep import GRIDS, append_result, load_results, machine, measure
+
+    emit = Emitter()
+    names = [n.strip() for n in args.presets.split(",") if n.strip()]
+    unknown = [n for n in names if n not in TARGETS]
+    if unknown:
+        raise InputError(None, f"unknown preset {', '.join(unknown)}", f"choose from {', '.join(TARGETS)}")
+    if args.from_results:
+        require(args.from_results.is_file(), args.from_results, "results file not found",
+                "run python -m backend bench sweep first, or leave out --from-results")
+        rows = [r for r in load_results(args.from_results) if r["scene"] == SCENE]
+        require(any(r["name"] in names for r in rows), args.from_results, f"no {SCENE} runs of the presets",
+                f"run python -m backend bench sweep --grid presets --scenes {SCENE}")
+        info = next((r["machine"] for r in rows if r.get("machine")), machine())
+        rows = [r for r in rows if r["name"] in names or r["name"] not in TARGETS]
+    else:
+        info = machine(variant.choose(args.variant, emit))
+        capture = ensure(SCENE, args.work / "scenes", emit)
+        settings = {s.name: s for s in GRIDS["presets"]}
+        rows = []
+        for i, name in enumerate(names):
+            emit("stage", stage=f"calibrate:{name}", level=i, faces=0)
+            row = measure(SCENE, capture, settings[name], args.work, args.repeats, float("inf"), args.variant)
+            row["machine"] = info
+            append_result(args.work / "results.jsonl", row)
+            rows.append(row)
+            emit("progress", stage="calibrate", iteration=i + 1, iterations=len(names), fraction=(i + 1) / len(names),
+                 preset=name, seconds=row["seconds"], f1=row.get("f1"), rc=row["rc"])
+    doc = calibration(rows, info, SCENES[SCENE].description, args.margin)
+    require(bool(doc["presets"]), None, "no preset run finished", f"see the logs under {args.work / 'logs'}")
+    fsio.write_json(args.out, doc)
+    emit("done", calibration=str(args.out), presets={n: {k: p[k] for k in ("expected_minutes", "expected_f1")}
+                                                     for n, p in doc["presets"].items()})
+    return 0

@@ -1,0 +1,350 @@
+"""Accuracy against time: reconstruct benchmark scenes over a grid of settings, report the Pareto fronts.
+
+``python -m backend bench sweep [--grid smoke|quick|full] [--scenes dragon,blob_env,corner]``
+synthesises each scene once (cached in ``OUT/scenes``), then runs ``python -m backend
+reconstruct`` as a child process for every setting of the grid and records: wall-clock
+seconds (the median over repeats for runs shorter than ``--repeat-under``), the child's
+CPU seconds and peak memory (``os.wait4`` rusage), the 1-minute load average before and
+after, Chamfer-L1 and F1@0.01 (from the run's report), and novel-view and relit PSNR (the
+result rendered with its estimated material at the capture's held-out and relit cameras,
+scored with :func:`backend.metrics.image.image_metrics` on the object's masks). Results
+accumulate in ``OUT/results.jsonl``; a setting already measured there is not run again
+(``--rerun`` forces it). Finally the report (``report.md``, ``pareto_<scene>.png``,
+``results.json``) is written to ``--report`` (default: bench/ at the repository root).
+
+The grid's settings change the knobs of the ``reconstruct`` command one at a time around the
+Draft preset: image size (--max-size), samples per pixel (--spp), bounces (prb_projective
+with --max-depth; 1 bounce = direct_projective), views per step, the iteration cap and time
+budget, and the face budget (--initial-faces, --max-levels); the presets themselves are
+part of the grid."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import platform
+import statistics
+import subprocess
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .. import fsio
+
+REPO = Path(__file__).resolve().parents[2]
+
+
+@dataclass(frozen=True)
+class Setting:
+    """A preset plus ``reconstruct`` options (None: the preset's value)."""
+
+    name: str
+    preset: str = "draft"
+    max_size: int | None = None
+    spp: int | None = None
+    max_depth: int | None = None  # path vertices for prb_projective; None: the preset's integrator
+    views_per_step: int | None = None
+    iterations: int | None = None
+    time_budget: float | None = None  # minutes
+    initial_faces: int | None = None
+    max_levels: int | None = None
+    init: str | None = None  # None: by the capture (carving with masks)
+
+    def args(self) -> list[str]:
+        """The ``reconstruct`` options of this setting."""
+        out = ["--preset", self.preset]
+        for f in dataclasses.fields(self):
+            value = getattr(self, f.name)
+            if f.name in ("name", "preset", "max_depth") or value is None:
+                continue
+            out += ["--" + f.name.replace("_", "-"), str(value)]
+        if self.max_depth is not None:
+            out += ["--integrator", "prb_projective", "--max-depth", str(self.max_depth)]
+        return out
+
+    def knobs(self) -> dict:
+        """The effective value of every knob: defaults, then the preset, then the options."""
+        from ..optimize.config import PRESETS, ReconstructConfig
+
+        c = dataclasses.asdict(ReconstructConfig())
+        c.update(PRESETS[self.preset])
+        c.update({k: v for k, v in dataclasses.asdict(self).items()
+                  if k not in ("name", "preset", "time_budget") and v is not None})
+        if self.max_depth is not None:
+            c["integrator"] = "prb_projective"
+        bounces = 1 if c["integrator"] == "direct_projective" else c["max_depth"] - 1
+        return {"max_size": c["max_size"], "spp": c["spp"], "bounces": bounces,
+                "views_per_step": c["views_per_step"], "iterations": c["iterations"],
+                "time_budget_min": self.time_budget, "initial_faces": c["initial_faces"],
+                "max_levels": c["max_levels"], "level_iterations": c["level_iterations"], "init": c["init"] or "auto"}
+
+
+def _one_at_a_time(base: str, variations: dict[str, list]) -> list[Setting]:
+    out = []
+    for knob, values in variations.items():
+        for v in values:
+            out.append(Setting(f"{base}:{knob}={v}", base, **{knob: v}))
+    return out
+
+
+GRIDS = {
+    # two tiny settings for the CI smoke test (meant for the 'tiny' scene)
+    "smoke": [Setting("smoke-a", "draft", max_size=24, spp=4, initial_faces=400, max_levels=1, iterations=8,
+                      init="sphere"),
+              Setting("smoke-b", "draft", max_size=32, spp=4, initial_faces=400, max_levels=2, iterations=90,
+                      init="sphere")],
+    # a first look: the Draft preset and two cheaper or richer neighbours
+    "quick": [Setting("draft"), Setting("draft:max_size=64", max_size=64),
+              Setting("draft:views_per_step=4", views_per_step=4)],
+    # one knob at a time around Draft, plus the Balanced preset
+    "full": [Setting("draft")] + _one_at_a_time("draft", {
+        "max_size": [64, 128], "spp": [8, 32], "max_depth": [3], "views_per_step": [1, 4],
+        "iterations": [150], "time_budget": [1.0], "initial_faces": [1000, 5000], "max_levels": [2, 4],
+    }) + [Setting("balanced", "balanced")],
+    # the three presets as they ship (what `bench calibrate` measures)
+    "presets": [Setting("draft"), Setting("balanced", "balanced"), Setting("final", "final")],
+}
+
+
+# -- measuring one run ------------------------------------------------------------------------------
+def machine(variant: str | None = None) -> dict:
+    """CPU model, cores, memory, Mitsuba variant and versions of this machine."""
+    cpu = platform.processor() or platform.machine()
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    info = {"cpu": cpu, "cores": os.cpu_count(), "variant": variant, "platform": platform.platform(),
+            "python": platform.python_version()}
+    try:
+        info["memory_gib"] = round(os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES") / 2 ** 30, 1)
+    except (ValueError, OSError):
+        pass
+    try:
+        import mitsuba
+
+        info["mitsuba"] = mitsuba.__version__
+    except ImportError:
+        pass
+    return info
+
+
+def machine_line(info: dict) -> str:
+    return f"{info['cpu']}, {info['cores']} cores, {info.get('variant') or 'default variant'}"
+
+
+def reconstruct_child(capture: Path, run: Path, setting: Setting, log: Path, seed: int = 0,
+                      variant: str | None = None) -> dict:
+    """Run ``python -m backend reconstruct`` for ``setting``; wall and CPU seconds, peak memory,
+    load average before and after, exit code."""
+    cmd = [sys.executable, "-m", "backend", "reconstruct", str(capture), "--out", str(run), "--overwrite",
+           "--seed", str(seed), *setting.args()] + (["--variant", variant] if variant else [])
+    env = dict(os.environ, PYTHONPATH=str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", ""),
+               PYTHONUNBUFFERED="1")
+    log.parent.mkdir(parents=True, exist_ok=True)
+    load_before = os.getloadavg()[0]
+    start = time.perf_counter()
+    with open(log, "w") as err:
+        proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=err, env=env, cwd=REPO)
+        try:
+            _, status, usage = os.wait4(proc.pid, 0)
+        except BaseException:
+            proc.kill()
+            proc.wait()
+            raise
+        proc.returncode = os.waitstatus_to_exitcode(status)
+    return {"seconds": time.perf_counter() - start, "cpu_seconds": usage.ru_utime + usage.ru_stime,
+            "peak_mb": usage.ru_maxrss / 1024.0, "load_before": load_before, "load_after": os.getloadavg()[0],
+            "rc": proc.returncode}
+
+
+# -- novel-view and relit scores ----------------------------------------------------------------
+def result_material(run: Path):
+    """The result's mesh and material field: the final display mesh (per-vertex albedo,
+    specular, roughness) when the run's last snapshot is its end, else ``result.ply`` with
+    the constants in ``report.json``'s ``material``."""
+    from ..geometry.mesh import load_mesh
+    from ..render.fields import ConstantField, VertexField
+
+    run = Path(run)
+    snap = run / "snapshot.json"
+    if snap.is_file():
+        info = json.loads(snap.read_text())
+        path = run / info.get("mesh", "")
+        if info.get("stage") == "done" and path.is_file():
+            mesh = load_mesh(path)
+            attrs = mesh.attributes or {}
+            if mesh.vertex_colors is not None and {"specular", "roughness"} <= set(attrs):
+                return mesh, VertexField(mesh.faces, mesh.vertex_colors, attrs["specular"], attrs["roughness"])
+    material = json.loads((run / "report.json").read_text())["material"]
+    return load_mesh(run / "result.ply"), ConstantField(material["albedo"], float(np.ravel(material["specular"])[0]),
+                                                         float(np.ravel(material["roughness"])[0]))
+
+
+def render_views(mesh, field, view_set, spp: int = 64, max_depth: int = 4, extra_shapes: dict | None = None,
+                 seed: int = 900) -> list[np.ndarray]:
+    """Linear RGB renders of ``mesh`` with ``field`` at every frame of ``view_set`` (a capture:
+    its cameras, point lights and environment), path traced with ``max_depth`` vertices."""
+    from ..capture.images import read_rgba
+    from ..render.scene import RenderSettings, SceneRenderer
+
+    env = view_set.environment
+    pixels = read_rgba(env.path)[0][..., :3] if env else None
+    renderer = SceneRenderer(mesh, field, [f.camera for f in view_set.frames], [f.lights for f in view_set.frames],
+                             env, RenderSettings(spp=spp, max_depth=max_depth, integrator="path"),
+                             extra_shapes, env_pixels=pixels)
+    return [renderer.render_numpy(v, seed=seed + v) for v in range(len(view_set.frames))]
+
+
+def view_scores(run: Path, capture, spp: int = 64) -> dict:
+    """PSNR/SSIM of the run's result at the capture's ground-truth held-out ("novel") and relit
+    views, on the object's masks. Empty when the capture has no such views."""
+    from ..capture.format import load_capture
+    from ..capture.images import read_linear_rgb, read_mask
+    from ..metrics.image import image_metrics
+
+    mesh, field = result_material(run)
+    prov = capture.provenance or {}
+    max_depth = int(prov.get("spec", {}).get("max_depth") or prov.get("max_depth") or 4)
+    room = prov["scene"].get("cornell") if isinstance(prov.get("scene"), dict) else None
+    extra = None
+    if room:  # synth --cornell: the room is part of the ground-truth renders
+        from ..synth.capture import cornell_shapes
+
+        extra = cornell_shapes(np.asarray(room["centre"]), float(room["half"]))
+    out = {}
+    for key, label in (("held_out", "novel"), ("relit", "relit")):
+        rel = (capture.ground_truth or {}).get(key)
+        if not rel:
+            continue
+        view_set = load_capture(capture.path(rel))
+        rendered = render_views(mesh, field, view_set, spp, max_depth, extra)
+        targets = [read_linear_rgb(f.image) for f in view_set.frames]
+        masks = [read_mask(f.mask) if f.mask else None for f in view_set.frames]
+        scores = image_metrics(rendered, targets, None if any(m is None for m in masks) else masks)
+        out[f"{label}_psnr"], out[f"{label}_ssim"] = scores["psnr"], scores["ssim"]
+    return out
+
+
+def measure(scene: str, capture_dir: Path, setting: Setting, out: Path, repeats: int = 1,
+            repeat_under: float = 0.0, variant: str | None = None, eval_spp: int = 64, seed: int = 0) -> dict:
+    """Run one setting on one scene (repeated while cheap) and score its result."""
+    from ..capture.format import load_capture
+
+    safe = setting.name.replace(":", "_").replace("=", "-")
+    run = out / "runs" / scene / safe
+    runs = [reconstruct_child(capture_dir, run, setting, out / "logs" / scene / f"{safe}.log", seed, variant)]
+    while runs[-1]["rc"] == 0 and len(runs) < repeats and runs[0]["seconds"] < repeat_under:
+        runs.append(reconstruct_child(capture_dir, run, setting, out / "logs" / scene / f"{safe}.log", seed,
+                                      variant))
+    row = {"scene": scene, "name": setting.name, "setting": dataclasses.asdict(setting), "knobs": setting.knobs(),
+           "args": setting.args(), "seed": seed, "repeats": len(runs), "rc": runs[-1]["rc"],
+           "seconds_runs": [round(r["seconds"], 2) for r in runs],
+           "seconds": round(statistics.median(r["seconds"] for r in runs), 2),
+           "cpu_seconds": round(statistics.median(r["cpu_seconds"] for r in runs), 2),
+           "peak_mb": round(max(r["peak_mb"] for r in runs), 1),
+           "load_before": round(min(r["load_before"] for r in runs), 2),
+           "load_after": round(max(r["load_after"] for r in runs), 2),
+           "measured": time.strftime("%Y-%m-%dT%H:%M:%S"), "run": str(run)}
+    if row["rc"] != 0:
+        row["error"] = (out / "logs" / scene / f"{safe}.log").read_text()[-600:]
+        return row
+    report = json.loads((run / "report.json").read_text())
+    m = report.get("metrics") or {}
+    row.update(chamfer_l1=m.get("chamfer_l1"), f1=m.get("f1@0.01"), f1_005=m.get("f1@0.005"),
+               loop_seconds=report["timings"]["total"], faces=report["result"]["faces"],
+               iterations=report["result"]["iterations"], levels=len(report["levels"]),
+               material=report.get("material"))
+    row.update({k: round(v, 3) for k, v in view_scores(run, load_capture(capture_dir), eval_spp).items()})
+    return row
+
+
+# -- results file ---------------------------------------------------------------------------------
+def load_results(path: Path) -> list[dict]:
+    """Rows of a results file (JSON lines); a later row replaces an earlier one of the same
+    scene and setting name."""
+    rows: dict[tuple, dict] = {}
+    if Path(path).is_file():
+        for line in Path(path).read_text().splitlines():
+            if line.strip():
+                row = json.loads(line)
+                rows[(row["scene"], row["name"])] = row
+    return list(rows.values())
+
+
+def append_result(path: Path, row: dict) -> None:
+    """Append one row (the whole file is rewritten atomically)."""
+    old = Path(path).read_text() if Path(path).is_file() else ""
+    fsio.write_text(path, old + json.dumps(row) + "\n")
+
+
+# -- command ---------------------------------------------------------------------------------------
+def add_arguments(parser) -> None:
+    from ._sweep_scenes import SCENES
+
+    parser.add_argument("--grid", choices=sorted(GRIDS), default="quick",
+                        help="settings to run: smoke (two tiny ones), quick (Draft and two neighbours), "
+                             "full (one knob at a time around Draft, plus Balanced), presets (default: %(default)s)")
+    parser.add_argument("--scenes", default="dragon,blob_env,corner",
+                        help=f"comma-separated, of {', '.join(SCENES)} (default: %(default)s)")
+    parser.add_argument("--settings", help="only the grid's settings with these names (comma-separated)")
+    parser.add_argument("--out", type=Path, default=REPO / "runs" / "bench-sweep",
+                        help="work folder: scenes, runs, logs, results.jsonl (default: %(default)s)")
+    parser.add_argument("--report", type=Path, default=REPO / "bench",
+                        help="where report.md, pareto_<scene>.png and results.json go (default: %(default)s)")
+    parser.add_argument("--repeats", type=int, default=3, help="runs per setting when cheap (default: %(default)s)")
+    parser.add_argument("--repeat-under", type=float, default=30.0,
+                        help="repeat only settings whose first run took fewer seconds (default: %(default)s)")
+    parser.add_argument("--eval-spp", type=int, default=128, help="samples per pixel of the scored renders (default: %(default)s)")
+    parser.add_argument("--rerun", action="store_true", help="run settings already in results.jsonl again")
+    parser.add_argument("--report-only", action="store_true", help="only rewrite the report from results.jsonl")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--variant", help="Mitsuba variant (default: automatic)")
+
+
+def run(args) -> int:
+    from .. import variant
+    from ..errors import InputError
+    from ..events import Emitter
+    from . import _report
+    from ._sweep_scenes import SCENES, ensure
+
+    emit = Emitter()
+    scenes = [s.strip() for s in args.scenes.split(",") if s.strip()]
+    unknown = [s for s in scenes if s not in SCENES]
+    if unknown:
+        raise InputError(None, f"unknown scene {', '.join(unknown)}", f"choose from {', '.join(SCENES)}")
+    grid = GRIDS[args.grid]
+    if args.settings:
+        wanted = {s.strip() for s in args.settings.split(",")}
+        missing = wanted - {s.name for s in grid}
+        if missing:
+            raise InputError(None, f"grid '{args.grid}' has no setting {', '.join(sorted(missing))}",
+                             f"choose from {', '.join(s.name for s in grid)}")
+        grid = [s for s in grid if s.name in wanted]
+    results = args.out / "results.jsonl"
+    if not args.report_only:
+        chosen = variant.choose(args.variant, emit)
+        info = machine(chosen)
+        done = {(r["scene"], r["name"]) for r in load_results(results) if r.get("rc") == 0}
+        todo = [(scene, s) for scene in scenes for s in grid if args.rerun or (scene, s.name) not in done]
+        for i, (scene, setting) in enumerate(todo):
+            capture = ensure(scene, args.out / "scenes", emit)
+            emit("stage", stage=f"sweep:{scene}:{setting.name}", level=i, faces=0)
+            row = measure(scene, capture, setting, args.out, args.repeats, args.repeat_under, args.variant,
+                          args.eval_spp, args.seed)
+            row["machine"] = info
+            append_result(results, row)
+            emit("progress", stage="sweep", iteration=i + 1, iterations=len(todo), fraction=(i + 1) / len(todo),
+                 scene=scene, setting=setting.name, seconds=row["seconds"], f1=row.get("f1"), rc=row["rc"])
+    rows = load_results(results)
+    written = _report.write(rows, args.report, SCENES)
+    emit("done", report=str(written), results=str(results), runs=len(rows))
+    return 0

@@ -1,0 +1,113 @@
+"""Pareto fronts, knob effects and the calibration's preset choice (no rendering)."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+
+from backend.bench import _pareto
+from backend.bench.calibrate import overrides, preset_for_budget
+from backend.bench.sweep import GRIDS, Setting
+
+
+def brute_front(times, scores):
+    """Indices no other point dominates (by definition), ordered by time."""
+    n = len(times)
+    keep = []
+    for i in range(n):
+        dominated = any(times[j] <= times[i] and scores[j] >= scores[i] and (times[j], scores[j]) != (times[i], scores[i])
+                        for j in range(n))
+        if not dominated:
+            keep.append(i)
+    return keep
+
+
+def test_front_of_a_small_set():
+    times = [10, 20, 15, 30, 5, 25]
+    scores = [50, 70, 40, 65, 30, 80]
+    # 5 s/30, 10 s/50, 20 s/70, 25 s/80; 15 s/40 and 30 s/65 are dominated
+    assert _pareto.front(times, scores) == [4, 0, 1, 5]
+
+
+def test_front_matches_the_definition_on_random_points():
+    rng = np.random.default_rng(3)
+    for _ in range(50):
+        n = int(rng.integers(1, 30))
+        times = rng.integers(1, 12, n).astype(float).tolist()  # small ranges: many ties
+        scores = rng.integers(0, 8, n).astype(float).tolist()
+        got = _pareto.front(times, scores)
+        want = brute_front(times, scores)
+        # identical points: the front keeps one of them
+        assert sorted({(times[i], scores[i]) for i in got}) == sorted({(times[i], scores[i]) for i in want})
+        assert len(got) == len({(times[i], scores[i]) for i in got})
+        assert [times[i] for i in got] == sorted(times[i] for i in got)
+        assert all(scores[a] < scores[b] for a, b in zip(got, got[1:]))
+
+
+def test_front_skips_non_finite_points_and_handles_empty_input():
+    assert _pareto.front([], []) == []
+    assert _pareto.front([1.0, math.nan, 3.0], [5.0, 9.0, math.inf]) == [0]
+
+
+def rows():
+    base = {"max_size": 96, "spp": 16, "bounces": 1}
+    return [{"name": "draft", "knobs": dict(base), "seconds": 100.0, "f1": 70.0},
+            {"name": "draft:max_size=128", "knobs": dict(base, max_size=128), "seconds": 160.0, "f1": 82.0},
+            {"name": "draft:spp=32", "knobs": dict(base, spp=32), "seconds": 150.0, "f1": 69.5},
+            {"name": "draft:spp=8", "knobs": dict(base, spp=8), "seconds": 80.0, "f1": 69.0},
+            {"name": "both", "knobs": dict(base, spp=32, max_size=128), "seconds": 300.0, "f1": 90.0}]
+
+
+def test_knob_effects_are_one_knob_changes_best_rate_first():
+    effects = _pareto.knob_effects(rows(), "draft")
+    assert [e["name"] for e in effects] == ["draft:max_size=128", "draft:spp=8", "draft:spp=32"]
+    first = effects[0]
+    assert (first["knob"], first["from"], first["to"]) == ("max_size", 96, 128)
+    assert first["per_second"] == 12.0 / 60.0
+    assert effects[1]["per_second"] == (69.0 - 70.0) / (80.0 - 100.0)  # cheaper and a little worse
+    assert _pareto.knob_effects(rows(), "absent") == []
+
+
+def test_front_steps_name_the_knobs_each_budget_buys():
+    steps = _pareto.front_steps(rows())
+    assert [(s["from"], s["to"]) for s in steps] == [("draft:spp=8", "draft"), ("draft", "draft:max_size=128"),
+                                                      ("draft:max_size=128", "both")]
+    assert steps[1]["knobs"] == {"max_size": (96, 128)}
+    assert steps[2]["knobs"] == {"spp": (16, 32)}
+    assert steps[2]["d_seconds"] == 140.0 and steps[2]["d_score"] == 8.0
+    assert _pareto.rate(1.0, 0.0) == math.inf and math.isnan(_pareto.rate(0.0, 0.0))
+
+
+def test_preset_for_budget_picks_the_most_accurate_preset_that_fits(tmp_path):
+    path = tmp_path / "presets.json"
+    assert preset_for_budget(5, path) == "balanced"  # no calibration: the default
+    path.write_text(json.dumps({"machine": "test", "presets": {
+        "draft": {"expected_minutes": 2.0, "expected_f1": 0.80},
+        "balanced": {"expected_minutes": 9.0, "expected_f1": 0.90},
+        "final": {"expected_minutes": 40.0, "expected_f1": 0.93}}}))
+    assert preset_for_budget(1, path) == "draft"  # nothing fits: the fastest
+    assert preset_for_budget(2, path) == "draft"
+    assert preset_for_budget(9.5, path) == "balanced"
+    assert preset_for_budget(60, path) == "final"
+    path.write_text("{broken")
+    assert preset_for_budget(60, path) == "balanced"
+
+
+def test_settings_turn_into_reconstruct_options_and_knobs():
+    s = Setting("x", "draft", max_size=64, max_depth=3, time_budget=1.5)
+    assert s.args() == ["--preset", "draft", "--max-size", "64", "--time-budget", "1.5",
+                        "--integrator", "prb_projective", "--max-depth", "3"]
+    k = s.knobs()
+    assert k["max_size"] == 64 and k["bounces"] == 2 and k["time_budget_min"] == 1.5
+    assert Setting("draft").knobs()["bounces"] == 1
+    names = [s.name for s in GRIDS["full"]]
+    assert len(names) == len(set(names)) and "draft" in names and "balanced" in names
+    # every one-at-a-time setting differs from Draft in exactly one knob
+    draft = Setting("draft").knobs()
+    for s in GRIDS["full"]:
+        if s.name.startswith("draft:"):
+            assert len(_pareto.changed(draft, s.knobs())) == 1, s.name
+    assert overrides(draft, dict(draft, max_size=128, bounces=2)) == {
+        "--max-size": 128, "--integrator": "prb_projective", "--max-depth": 3}

@@ -1,0 +1,86 @@
+"""The sweep harness end to end on the tiny scene with its two smoke settings (real synth,
+real reconstruct child processes, real renders), then the report and the calibration file
+built from those rows."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+
+import pytest
+
+from backend.bench import _pareto, calibrate, sweep
+from backend.bench._sweep_scenes import SCENES
+from backend.geometry.mesh import load_mesh
+
+
+@pytest.fixture(scope="module")
+def swept(tmp_path_factory):
+    root = tmp_path_factory.mktemp("sweep")
+    parser = argparse.ArgumentParser()
+    sweep.add_arguments(parser)
+    args = parser.parse_args(["--grid", "smoke", "--scenes", "tiny", "--out", str(root / "work"),
+                              "--report", str(root / "report"), "--repeats", "1", "--eval-spp", "16"])
+    assert sweep.run(args) == 0
+    return root
+
+
+def test_every_setting_is_measured_and_scored(swept):
+    rows = sweep.load_results(swept / "work" / "results.jsonl")
+    assert sorted(r["name"] for r in rows) == ["smoke-a", "smoke-b"]
+    for r in rows:
+        assert r["rc"] == 0, r.get("error")
+        assert r["seconds"] > 0 and r["cpu_seconds"] > 0 and r["peak_mb"] > 50
+        assert 0 < r["f1"] <= 100 and 0 < r["chamfer_l1"] < 0.5
+        assert math.isfinite(r["novel_psnr"]) and math.isfinite(r["relit_psnr"]) and r["relit_psnr"] > 10
+        assert r["knobs"]["max_size"] == {"smoke-a": 24, "smoke-b": 32}[r["name"]]
+        assert r["machine"]["cores"] >= 1 and r["machine"]["variant"]
+        assert load_mesh(sweep.Path(r["run"]) / "result.ply").n_faces > 0
+
+
+def test_report_and_plot_are_written(swept):
+    report = swept / "report"
+    text = (report / "report.md").read_text()
+    assert "## tiny" in text and "Pareto front" in text and "smoke-a" in text and "load average" in text
+    png = (report / "pareto_tiny.png").read_bytes()
+    assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 10_000
+    rows = json.loads((report / "results.json").read_text())
+    front = _pareto.front([r["seconds"] for r in rows], [r["f1"] for r in rows])
+    assert front and all(rows[i]["name"] in text for i in front)
+
+
+def test_result_renders_score_the_truth_higher_than_a_sphere(swept):
+    """The scoring function itself: the true mesh scores far better than a wrong shape."""
+    from backend.capture.format import load_capture
+    from backend.geometry.mesh import Mesh, save_mesh
+    from backend.synth.procedural import icosphere
+
+    capture = load_capture(swept / "work" / "scenes" / "tiny")
+    scores = {}
+    for name, mesh in (("truth", load_mesh(capture.path(capture.ground_truth["mesh"]))),
+                       ("sphere", icosphere(3, 0.2))):
+        run = swept / f"fake-{name}"
+        save_mesh(run / "result.ply", Mesh(mesh.vertices, mesh.faces))
+        (run / "report.json").write_text(json.dumps({"material": {"albedo": [0.6] * 3, "specular": [0.25],
+                                                                  "roughness": [0.35]}}))
+        scores[name] = sweep.view_scores(run, capture, spp=64)
+    # the tiny capture's own noise (16 spp) caps the truth's scores near 30 and 27 dB
+    assert scores["truth"]["novel_psnr"] > 27 and scores["truth"]["relit_psnr"] > 24
+    assert scores["truth"]["novel_psnr"] > scores["sphere"]["novel_psnr"] + 5
+
+
+def test_calibration_file_from_rows(swept, tmp_path):
+    rows = sweep.load_results(swept / "work" / "results.jsonl")
+    as_presets = [dict(r, scene="dragon", name=n) for r, n in zip(sorted(rows, key=lambda r: r["name"]),
+                                                                 ("draft", "balanced"))]
+    doc = calibrate.calibration(as_presets, as_presets[0]["machine"], SCENES["dragon"].description)
+    assert isinstance(doc["machine"], str) and "cores" in doc["machine"]
+    assert set(doc["presets"]) == {"draft", "balanced"}
+    draft = doc["presets"]["draft"]
+    assert 0 < draft["expected_f1"] <= 1 and draft["expected_minutes"] > 0
+    assert draft["target"]["minutes"] == 3.0
+    path = tmp_path / "presets.json"
+    path.write_text(json.dumps(doc))
+    fastest = min(doc["presets"], key=lambda n: doc["presets"][n]["expected_minutes"])
+    assert calibrate.preset_for_budget(1e-3, path) == fastest
