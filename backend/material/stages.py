@@ -173,25 +173,30 @@ def fit(renderer, images: list[np.ndarray], weights: list[np.ndarray] | None, ma
         opt.set_learning_rate({**{n: settings.lr * decay for n in names},
                                **({"light": settings.light_lr * decay} if factor is not None else {})})
         material.load_parameters({n: opt[n] for n in names})
-        if factor is not None:
-            factor.set(opt["light"])
-        loss = mi.Float(0.0)
-        for _ in range(min(settings.views_per_step, n_views)):
+        loss = 0.0
+        count = min(settings.views_per_step, n_views)
+        for _ in range(count):
             if not order:
                 order = list(rng.permutation(n_views))
             v = int(order.pop())
+            if factor is not None:  # per view: the last backward pass used up the graph from log k
+                factor.set(opt["light"])
             img = renderer.render(v, seed=settings.seed * 100003 + it * 17 + v,
                                   spp=settings.spp or None, params=material.attach(renderer.params))
-            loss += dr.sum(w[v] * dr.square(img - targets[v])).array / norms[v]
-        loss /= min(settings.views_per_step, n_views)
+            view_loss = dr.sum(w[v] * dr.square(img - targets[v])).array / (norms[v] * count)
+            # one backward pass per view: the integrator re-traces the scene when differentiating,
+            # so it must happen while this view's lights are still in place
+            dr.backward(view_loss)
+            loss += float(view_loss[0])
+        penalty = mi.Float(0.0)
         if settings.variance_weight and "specular" in names:
-            loss += settings.variance_weight * variance_penalty(material, "specular")
+            penalty += settings.variance_weight * variance_penalty(material, "specular")
         if settings.smoothness_weight:
             for n in names:
-                loss += settings.smoothness_weight * smoothness_penalty(material, n, edges)
-        dr.backward(loss)
+                penalty += settings.smoothness_weight * smoothness_penalty(material, n, edges)
+        dr.backward(penalty, flags=dr.ADFlag.Default | dr.ADFlag.AllowNoGrad)
         opt.step()
-        result.losses.append(float(loss[0]))
+        result.losses.append(loss + float(penalty[0]))
         if emit:
             emit("progress", stage=f"material:{stage}", iteration=it + 1, iterations=settings.iterations,
                  loss=result.losses[-1], faces=material.n_faces)

@@ -82,18 +82,23 @@ class Objective:
         for z in trainable.values():
             dr.enable_grad(z)
         params = self.material.attach(self.renderer.params)
-        total = mi.Float(0.0)
+        total = 0.0
         for k, view in enumerate(view_ids):
+            if k and geometry:  # the last backward pass used up the graph from v to the vertex normals: rebuild it
+                self.renderer.params.set_dirty(VERTICES)
+                self.renderer.params.update()
             img = self.renderer.render_split(view, seed=step_seed + k, params=params)
-            total += dr.mean(dr.square(self._tone(img) - self.targets[view]), axis=None).array
-        total /= len(view_ids)
-        dr.backward(total)
+            loss = dr.mean(dr.square(self._tone(img) - self.targets[view]), axis=None).array / len(view_ids)
+            # one backward pass per view: the integrator re-traces the scene when differentiating,
+            # so it must happen while this view's lights are still in place
+            dr.backward(loss)
+            total += float(loss[0])
         grad_v = np.array(dr.grad(v), np.float64).reshape(-1, 3) if geometry else None
         grads = {n: np.array(dr.grad(z), np.float64) for n, z in trainable.items()}
         for z in trainable.values():
             dr.disable_grad(z)
         self._set_vertices(mi.Float(np.asarray(vertices, np.float32).ravel()))
-        return float(total[0]), grad_v, grads
+        return total, grad_v, grads
 
     def loss(self, vertices: np.ndarray, view_ids: list[int], seed: int, spp: int | None = None) -> float:
         """Mean masked MSE without gradients (fixed seed: comparable between calls)."""
