@@ -14,6 +14,7 @@ from PIL import Image
 
 from ..capture.images import read_linear_rgb, read_mask
 from ..capture.model import Camera, Capture, PointLight
+from ..errors import require
 
 PREMULTIPLIED_LEVEL = 1e-4  # brightest pixel outside the mask of a premultiplied image
 
@@ -59,6 +60,9 @@ class ViewSet:
         for frame in capture.frames:
             image = read_linear_rgb(frame.image)
             mask = read_mask(frame.mask) if frame.mask else None
+            for path, pixels in ((frame.image, image), (frame.mask, mask)):
+                require(pixels is None or bool(np.all(np.isfinite(pixels))), path, "contains NaN or Inf pixels",
+                        "re-export it with finite values (clip or repair the bad pixels)")
             if mask is not None:
                 outside = image[mask <= 0.0]
                 if outside.size and float(outside.max()) <= PREMULTIPLIED_LEVEL:
