@@ -6,11 +6,16 @@ emitter started). See docs/protocol.md for the kinds and their fields."""
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
+import os
 import sys
+import threading
 import time
 from pathlib import Path
+
+from .fsio import space_error
 
 
 def _clean(value):
@@ -26,13 +31,20 @@ def _clean(value):
 
 
 class Emitter:
-    """Writes events to a stream (stdout by default) and optionally to a log file."""
+    """Writes events to a stream (stdout by default) and optionally to a log file.
+
+    The log only ever holds whole lines. When a line cannot be appended (a full disk), the
+    log is cut back to its last whole line and closed, and the next event emitted from the
+    main thread raises the error (InputError for a full disk or quota), so the failure ends
+    the run cleanly even when it happened on a heartbeat thread."""
 
     def __init__(self, log_path: str | Path | None = None, stream=None, quiet: bool = False):
         self.stream = stream if stream is not None else sys.stdout
         self.quiet = quiet
         self.start = time.perf_counter()
-        self.log = open(log_path, "a", buffering=1) if log_path else None
+        self.log_path = Path(log_path) if log_path else None
+        self.log = open(log_path, "ab", buffering=0) if log_path else None
+        self.failure: Exception | None = None
 
     def __call__(self, event: str, **fields) -> dict:
         record = {"event": event, "time": round(time.perf_counter() - self.start, 3), **_clean(fields)}
@@ -41,8 +53,24 @@ class Emitter:
             self.stream.write(line + "\n")
             self.stream.flush()
         if self.log:
-            self.log.write(line + "\n")
+            self._append((line + "\n").encode())
+        if self.failure is not None and threading.current_thread() is threading.main_thread():
+            failure, self.failure = self.failure, None
+            raise failure
         return record
+
+    def _append(self, data: bytes) -> None:
+        size = self.log.tell()
+        try:
+            if self.log.write(data) != len(data):  # a short write: the disk filled up
+                self.log.write(data[-1:])  # raises the error that cut it short
+        except OSError as err:
+            log, self.log = self.log, None
+            with contextlib.suppress(OSError):
+                os.ftruncate(log.fileno(), size)
+            with contextlib.suppress(OSError):
+                log.close()
+            self.failure = space_error(self.log_path, err)
 
     def close(self):
         if self.log:

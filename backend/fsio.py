@@ -19,11 +19,19 @@ _UMASK = os.umask(0)
 os.umask(_UMASK)
 
 
-def _check_space(path: Path, err: OSError):
+def space_error(path, err: OSError) -> Exception:
+    """The InputError for a write that failed on a full disk or quota; other errors unchanged."""
     if err.errno in (errno.ENOSPC, errno.EDQUOT, errno.EFBIG):
-        raise InputError(path, f"cannot write: {os.strerror(err.errno).lower()}",
-                         "free disk space, raise the quota or choose another output folder") from err
-    raise err
+        return InputError(path, f"cannot write: {os.strerror(err.errno).lower()}",
+                          "free disk space, raise the quota or choose another output folder")
+    return err
+
+
+def _check_space(path: Path, err: OSError):
+    failure = space_error(path, err)
+    if failure is err:
+        raise err
+    raise failure from err
 
 
 @contextlib.contextmanager
