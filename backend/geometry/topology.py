@@ -176,7 +176,19 @@ def repair(mesh: Mesh) -> tuple[Mesh, list[str]]:
         ms.meshing_close_holes(maxholesize=max(30, m.face_number() // 10), selfintersection=False)
         notes.append("closed holes")
     m = ms.current_mesh()
-    return clean(Mesh(m.vertex_matrix(), m.face_matrix())), notes
+    return _drop_open_pieces(clean(Mesh(m.vertex_matrix(), m.face_matrix())), notes), notes
+
+
+def _drop_open_pieces(mesh: Mesh, notes: list[str]) -> Mesh:
+    """Drop components that are still open (stray triangles, flaps) when a closed one exists."""
+    n, labels = face_components(mesh)
+    if n <= 1:
+        return mesh
+    closed = np.array([inspect(Mesh(mesh.vertices, mesh.faces[labels == k])).boundary_edges == 0 for k in range(n)])
+    if closed.all() or not closed.any():
+        return mesh
+    notes.append(f"dropped {int(np.sum(~closed))} open pieces ({int(np.sum(~closed[labels]))} faces)")
+    return clean(Mesh(mesh.vertices, mesh.faces[closed[labels]]))
 
 
 def orient_outward(mesh: Mesh) -> Mesh:
