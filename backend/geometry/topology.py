@@ -202,6 +202,24 @@ def orient_outward(mesh: Mesh) -> Mesh:
     return mesh
 
 
+def enclosed(mesh: Mesh, points: np.ndarray) -> np.ndarray:
+    """Which ``points`` (N, 3) lie inside the mesh: generalised winding number above 1/2
+    (either orientation; exact for closed meshes, robust to small holes)."""
+    points = np.asarray(points, np.float64).reshape(-1, 3)
+    inside = np.zeros(len(points), bool)
+    lo, hi = mesh.bounds()
+    candidates = np.nonzero(np.all((points >= lo) & (points <= hi), axis=1))[0]  # outside the box: outside
+    tri = mesh.vertices[mesh.faces] if len(candidates) else None
+    for i in candidates:
+        a, b, c = (tri[:, k] - points[i] for k in range(3))
+        la, lb, lc = (np.linalg.norm(x, axis=1) for x in (a, b, c))
+        num = np.einsum("ij,ij->i", a, np.cross(b, c))
+        den = (la * lb * lc + np.einsum("ij,ij->i", a, b) * lc + np.einsum("ij,ij->i", b, c) * la
+               + np.einsum("ij,ij->i", c, a) * lb)
+        inside[i] = abs(np.arctan2(num, den).sum()) / (2 * np.pi) > 0.5  # solid angles / 4 pi
+    return inside
+
+
 def mean_edge_length(mesh: Mesh) -> float:
     e, _ = edges(mesh.faces)
     return float(np.linalg.norm(mesh.vertices[e[:, 0]] - mesh.vertices[e[:, 1]], axis=1).mean())

@@ -22,7 +22,7 @@ from ..geometry.mesh import Mesh, load_mesh, save_mesh
 from ..geometry.remesh import poisson_from_samples, sample_surface
 from ..geometry.simplify import FaceBudget
 from ..geometry.subdivide import midpoint
-from ..geometry.topology import inspect, mean_edge_length
+from ..geometry.topology import enclosed, inspect, mean_edge_length
 from ..render.scene import RenderSettings
 from .. import fsio
 from .config import ReconstructConfig
@@ -167,6 +167,7 @@ class Reconstruction:
         start = time.perf_counter()
         size = level_size(self.level, c.coarse_size, c.max_size)
         views = self.viewset.at(size)
+        centres = np.array([v.camera.centre for v in views])
         self.emit("stage", stage="geometry", level=self.level, faces=self.mesh.n_faces)
         objective = Objective(self.mesh, self.material, views, self._settings(), self.capture.environment,
                               tone=c.tone)
@@ -206,6 +207,13 @@ class Reconstruction:
                     if not finite(new_vertices):
                         opt.set_vertices(vertices)
                         self._skip("non-finite vertex positions after a step")
+                        continue
+                    if enclosed(Mesh(new_vertices, self.mesh.faces), centres).any():
+                        # no silhouette left to render from inside: the step was too long
+                        opt.set_vertices(vertices)
+                        opt.reset_moments()
+                        opt.lr *= 0.5
+                        self._skip("the step put a camera inside the mesh (step halved)")
                         continue
                     vertices = new_vertices
                 if mgrads:

@@ -10,7 +10,7 @@ from ...capture.model import Camera
 from ...errors import InputError, require
 from ..mesh import Mesh, load_mesh
 from ..simplify import simplify
-from ..topology import clean, inspect, orient_outward, repair
+from ..topology import clean, enclosed, inspect, orient_outward, repair
 
 FIX = "give a closed triangle mesh in the capture's world frame, or use --init carve"
 
@@ -46,6 +46,10 @@ def check_initial_mesh(mesh: Mesh, path, cameras: list[Camera], warn) -> Mesh:
         warn(f"{Path(str(path)).name}: initial mesh repaired ({', '.join(report.issues)}: "
              f"{', '.join(notes) or 'cleaned'}"
              + ("" if after.closed_manifold else f"; still {', '.join(after.issues)}") + ")")
+    inside = int(enclosed(mesh, [c.centre for c in cameras]).sum())
+    require(inside == 0, path, f"the initial mesh encloses {inside} of the {len(cameras)} cameras "
+            "(the renderer must see it from outside)",
+            "scale the mesh down or move it so that every camera is outside it, or use --init carve")
     return orient_outward(mesh)
 
 
