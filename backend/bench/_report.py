@@ -11,6 +11,7 @@ from .. import fsio
 from . import _pareto
 
 PRESET_NAMES = ("draft", "balanced", "final")
+BUDGETS_MIN = (1, 3, 10, 30)
 
 
 def _fmt(value, digits: int = 1) -> str:
@@ -30,6 +31,7 @@ def plot(rows: list[dict], scene: str, path: Path) -> None:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    import matplotlib.ticker
 
     fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
     for ax, key, label in ((axes[0], "f1", "F1@0.01 (%)"), (axes[1], "relit_psnr", "relit PSNR (dB)")):
@@ -50,10 +52,13 @@ def plot(rows: list[dict], scene: str, path: Path) -> None:
         ax.step(xs + [max(r["seconds"] for r in pts) * 1.15], ys + ys[-1:], where="post", color="tab:red",
                 lw=1.2, label="Pareto front")
         ax.set_xscale("log")
+        ax.xaxis.set_major_formatter(matplotlib.ticker.FuncFormatter(lambda x, _: f"{x:g}"))
+        ax.xaxis.set_minor_formatter(matplotlib.ticker.FuncFormatter(lambda x, _: f"{x:g}"))
+        ax.tick_params(axis="x", which="minor", labelsize=7)
         ax.set_xlabel("wall-clock seconds (log)")
         ax.set_ylabel(label)
         ax.grid(True, which="both", alpha=0.3)
-        ax.legend(loc="lower right", fontsize=8)
+        ax.legend(loc="best", fontsize=8)
     fig.suptitle(f"{scene}: accuracy against time ({len(rows)} runs)")
     fig.tight_layout()
     with fsio.atomic_path(path) as tmp:
@@ -83,6 +88,32 @@ def _all_table(rows: list[dict]) -> list[str]:
         lines.append(f"| {r['name']} | {_fmt(r['seconds'], 0)} | {_fmt(r.get('cpu_seconds'), 0)} | "
                      f"{_fmt(r.get('peak_mb'), 0)} | {_fmt(r['f1'])} | {_fmt(r.get('chamfer_l1'), 4)} | "
                      f"{_fmt(r.get('novel_psnr'))} | {_fmt(r.get('relit_psnr'))} | {'●' if i in on else ''} |")
+    return lines
+
+
+def _summary_lines(by_scene: dict[str, list[dict]]) -> list[str]:
+    """Per scene and wall-clock budget: the most accurate run that fit, and what the next step
+    along the front buys (the knob with the best accuracy per second from there)."""
+    lines = ["| scene | budget | best setting within it | wall s | F1@0.01 | Chamfer-L1 | relit PSNR | "
+             "next step on the front |", "|---|---:|---|---:|---:|---:|---:|---|"]
+    for scene, rows in by_scene.items():
+        steps = _pareto.front_steps(rows)
+        last = None
+        for minutes in BUDGETS_MIN:
+            fit = [r for r in rows if r["seconds"] <= 60 * minutes]
+            if not fit:
+                continue
+            best = max(fit, key=lambda r: (r["f1"], -r["seconds"]))
+            if best is last:
+                continue
+            last = best
+            step = next((s for s in steps if s["from"] == best["name"]), None)
+            nxt = "–" if step is None else (
+                f"{', '.join(f'{k} {a}→{b}' for k, (a, b) in step['knobs'].items())}: "
+                f"+{step['d_score']:.1f} F1 for +{step['d_seconds']:.0f} s")
+            lines.append(f"| {scene} | ≤ {minutes} min | {best['name']} | {_fmt(best['seconds'], 0)} | "
+                         f"{_fmt(best['f1'])} | {_fmt(best.get('chamfer_l1'), 4)} | {_fmt(best.get('relit_psnr'))} | "
+                         f"{nxt} |")
     return lines
 
 
@@ -152,7 +183,8 @@ def write(rows: list[dict], out: Path, scenes: dict, presets_path: Path | None =
     if loads:
         md.append(f"- 1-minute load average around the runs: {min(loads):.1f}–{max(loads):.1f} on "
                   f"{next(iter(machines.values()), {}).get('cores', '?')} cores. Other jobs shared the CPU, so "
-                  "wall-clock times are inflated by up to that factor; CPU seconds of the process are given too.")
+                  "wall-clock times are inflated (by about load / cores when the load exceeds the cores); the CPU "
+                  "seconds of the process are given too.")
     if dates:
         md.append(f"- Measured {dates[0]} to {dates[-1]}.")
     failed = [r for r in rows if r.get("rc") != 0]
@@ -162,6 +194,9 @@ def write(rows: list[dict], out: Path, scenes: dict, presets_path: Path | None =
     by_scene: dict[str, list[dict]] = {}
     for r in good:
         by_scene.setdefault(r["scene"], []).append(r)
+    if by_scene:
+        md += ["## Summary", "", "The most accurate run within each wall-clock budget (Pareto front per scene below):",
+               ""] + _summary_lines(by_scene) + [""]
     for scene, srows in by_scene.items():
         png = out / f"pareto_{scene}.png"
         plot(srows, scene, png)

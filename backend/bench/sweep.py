@@ -101,10 +101,12 @@ GRIDS = {
     "quick": [Setting("draft"), Setting("draft:max_size=64", max_size=64),
               Setting("draft:views_per_step=4", views_per_step=4)],
     # one knob at a time around Draft, plus the Balanced preset
-    "full": [Setting("draft")] + _one_at_a_time("draft", {
-        "max_size": [64, 128], "spp": [8, 32], "max_depth": [3], "views_per_step": [1, 4],
-        "iterations": [150], "time_budget": [1.0], "initial_faces": [1000, 5000], "max_levels": [2, 4],
-    }) + [Setting("balanced", "balanced")],
+    # (richer neighbours first, then cheaper ones: a sweep cut short still shows what buys accuracy)
+    "full": [Setting("draft"), Setting("balanced", "balanced")] + _one_at_a_time("draft", {
+        "max_size": [128], "initial_faces": [5000], "views_per_step": [4], "spp": [32], "max_levels": [4],
+        "max_depth": [3]}) + _one_at_a_time("draft", {
+        "max_size": [64], "spp": [8], "views_per_step": [1], "iterations": [150], "time_budget": [1.0],
+        "initial_faces": [1000], "max_levels": [2]}),
     # the three presets as they ship (what `bench calibrate` measures)
     "presets": [Setting("draft"), Setting("balanced", "balanced"), Setting("final", "final")],
 }
@@ -166,12 +168,11 @@ def reconstruct_child(capture: Path, run: Path, setting: Setting, log: Path, see
 
 
 # -- novel-view and relit scores ----------------------------------------------------------------
-def result_material(run: Path):
-    """The result's mesh and material field: the final display mesh (per-vertex albedo,
-    specular, roughness) when the run's last snapshot is its end, else ``result.ply`` with
-    the constants in ``report.json``'s ``material``."""
-    from ..geometry.mesh import load_mesh
-    from ..render.fields import ConstantField, VertexField
+def result_display(run: Path):
+    """The result with its material per vertex: the run's final display mesh when its last
+    snapshot is the end of the run, else ``result.ply`` with the constants of ``report.json``'s
+    ``material``."""
+    from ..geometry.mesh import Mesh, load_mesh
 
     run = Path(run)
     snap = run / "snapshot.json"
@@ -180,55 +181,40 @@ def result_material(run: Path):
         path = run / info.get("mesh", "")
         if info.get("stage") == "done" and path.is_file():
             mesh = load_mesh(path)
-            attrs = mesh.attributes or {}
-            if mesh.vertex_colors is not None and {"specular", "roughness"} <= set(attrs):
-                return mesh, VertexField(mesh.faces, mesh.vertex_colors, attrs["specular"], attrs["roughness"])
+            if mesh.vertex_colors is not None and {"specular", "roughness"} <= set(mesh.attributes or {}):
+                return mesh
     material = json.loads((run / "report.json").read_text())["material"]
-    return load_mesh(run / "result.ply"), ConstantField(material["albedo"], float(np.ravel(material["specular"])[0]),
-                                                         float(np.ravel(material["roughness"])[0]))
+    result = load_mesh(run / "result.ply")
+    mesh = Mesh(result.vertices, result.faces)
+    n = mesh.n_vertices
+    mesh.vertex_colors = np.tile(np.broadcast_to(np.asarray(material["albedo"], np.float32), 3), (n, 1))
+    mesh.attributes = {k: np.full(n, float(np.ravel(material[k])[0]), np.float32) for k in ("specular", "roughness")}
+    return mesh
 
 
-def render_views(mesh, field, view_set, spp: int = 64, max_depth: int = 4, extra_shapes: dict | None = None,
-                 seed: int = 900) -> list[np.ndarray]:
-    """Linear RGB renders of ``mesh`` with ``field`` at every frame of ``view_set`` (a capture:
-    its cameras, point lights and environment), path traced with ``max_depth`` vertices."""
-    from ..capture.images import read_rgba
-    from ..render.scene import RenderSettings, SceneRenderer
-
-    env = view_set.environment
-    pixels = read_rgba(env.path)[0][..., :3] if env else None
-    renderer = SceneRenderer(mesh, field, [f.camera for f in view_set.frames], [f.lights for f in view_set.frames],
-                             env, RenderSettings(spp=spp, max_depth=max_depth, integrator="path"),
-                             extra_shapes, env_pixels=pixels)
-    return [renderer.render_numpy(v, seed=seed + v) for v in range(len(view_set.frames))]
-
-
-def view_scores(run: Path, capture, spp: int = 64) -> dict:
-    """PSNR/SSIM of the run's result at the capture's ground-truth held-out ("novel") and relit
-    views, on the object's masks. Empty when the capture has no such views."""
+def view_scores(run: Path, capture, spp: int = 128) -> dict:
+    """PSNR/SSIM of the run's result, rendered with its material, at the capture's ground-truth
+    held-out ("novel") and relit views, on the object's masks; path traced with as many
+    vertices as the capture was. Empty when the capture has no such views."""
     from ..capture.format import load_capture
     from ..capture.images import read_linear_rgb, read_mask
     from ..metrics.image import image_metrics
+    from ..render.views import render_views
 
-    mesh, field = result_material(run)
+    mesh = result_display(run)
     prov = capture.provenance or {}
     max_depth = int(prov.get("spec", {}).get("max_depth") or prov.get("max_depth") or 4)
-    room = prov["scene"].get("cornell") if isinstance(prov.get("scene"), dict) else None
-    extra = None
-    if room:  # synth --cornell: the room is part of the ground-truth renders
-        from ..synth.capture import cornell_shapes
-
-        extra = cornell_shapes(np.asarray(room["centre"]), float(room["half"]))
     out = {}
     for key, label in (("held_out", "novel"), ("relit", "relit")):
         rel = (capture.ground_truth or {}).get(key)
         if not rel:
             continue
         view_set = load_capture(capture.path(rel))
-        rendered = render_views(mesh, field, view_set, spp, max_depth, extra)
+        rendered = render_views(mesh, view_set, spp, max_depth, seed=900)
         targets = [read_linear_rgb(f.image) for f in view_set.frames]
         masks = [read_mask(f.mask) if f.mask else None for f in view_set.frames]
-        scores = image_metrics(rendered, targets, None if any(m is None for m in masks) else masks)
+        scores = image_metrics([rendered[f.name] for f in view_set.frames], targets,
+                               None if any(m is None for m in masks) else masks)
         out[f"{label}_psnr"], out[f"{label}_ssim"] = scores["psnr"], scores["ssim"]
     return out
 
