@@ -187,6 +187,8 @@ def write(rows: list[dict], out: Path, scenes: dict, presets_path: Path | None =
                   "seconds of the process are given too.")
     if dates:
         md.append(f"- Measured {dates[0]} to {dates[-1]}.")
+    codes = sorted({r.get("code", "unknown") for r in rows})
+    md.append(f"- Backend code measured: {', '.join(codes)} (commit the reconstruct processes ran from).")
     failed = [r for r in rows if r.get("rc") != 0]
     if failed:
         md.append(f"- Failed runs (not plotted): {', '.join(r['scene'] + '/' + r['name'] for r in failed)}.")

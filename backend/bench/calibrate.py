@@ -125,6 +125,7 @@ def calibration(rows: list[dict], machine: dict, scene_description: str, margin:
     return {"machine": machine_line(machine), "machine_details": machine,
             "measured": dates[-1] if dates else time.strftime("%Y-%m-%dT%H:%M:%S"),
             "scene": f"{SCENE}: {scene_description}",
+            "code": ", ".join(sorted({r.get("code", "unknown") for r in good})),
             "metric": "expected_f1 is F1@0.01 as a fraction; expected_minutes is the wall clock of the whole "
                       "reconstruct process (median of the runs); load_average is the 1-minute load before/after",
             "presets": presets}
@@ -148,7 +149,7 @@ def run(args) -> int:
     from ..errors import InputError, require
     from ..events import Emitter
     from ._sweep_scenes import SCENES, ensure
-    from .sweep import GRIDS, append_result, load_results, machine, measure
+    from .sweep import GRIDS, append_result, code_version, load_results, machine, measure
 
     emit = Emitter()
     names = [n.strip() for n in args.presets.split(",") if n.strip()]
@@ -171,7 +172,7 @@ def run(args) -> int:
         for i, name in enumerate(names):
             emit("stage", stage=f"calibrate:{name}", level=i, faces=0)
             row = measure(SCENE, capture, settings[name], args.work, args.repeats, float("inf"), args.variant)
-            row["machine"] = info
+            row["machine"], row["code"] = info, code_version()
             append_result(args.work / "results.jsonl", row)
             rows.append(row)
             emit("progress", stage="calibrate", iteration=i + 1, iterations=len(names), fraction=(i + 1) / len(names),

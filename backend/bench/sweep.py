@@ -138,6 +138,18 @@ def machine(variant: str | None = None) -> dict:
     return info
 
 
+def code_version(root: Path = REPO) -> str:
+    """The commit the backend runs from: ``git rev-parse HEAD`` (with ``+dirty`` for local
+    changes) in a checkout, the ``COMMIT`` file's contents in an exported tree, else 'unknown'."""
+    if (root / ".git").exists():
+        def git(*args):
+            return subprocess.run(["git", "-C", str(root), *args], capture_output=True, text=True).stdout.strip()
+        head = git("rev-parse", "--short=12", "HEAD")
+        return head + ("+dirty" if git("status", "--porcelain", "--untracked-files=no") else "") if head else "unknown"
+    stamp = root / "COMMIT"
+    return stamp.read_text().strip() if stamp.is_file() else "unknown"
+
+
 def machine_line(info: dict) -> str:
     return f"{info['cpu']}, {info['cores']} cores, {info.get('variant') or 'default variant'}"
 
@@ -319,6 +331,7 @@ def run(args) -> int:
     if not args.report_only:
         chosen = variant.choose(args.variant, emit)
         info = machine(chosen)
+        code = code_version()
         done = {(r["scene"], r["name"]) for r in load_results(results) if r.get("rc") == 0}
         todo = [(scene, s) for scene in scenes for s in grid if args.rerun or (scene, s.name) not in done]
         for i, (scene, setting) in enumerate(todo):
@@ -326,7 +339,7 @@ def run(args) -> int:
             emit("stage", stage=f"sweep:{scene}:{setting.name}", level=i, faces=0)
             row = measure(scene, capture, setting, args.out, args.repeats, args.repeat_under, args.variant,
                           args.eval_spp, args.seed)
-            row["machine"] = info
+            row["machine"], row["code"] = info, code
             append_result(results, row)
             emit("progress", stage="sweep", iteration=i + 1, iterations=len(todo), fraction=(i + 1) / len(todo),
                  scene=scene, setting=setting.name, seconds=row["seconds"], f1=row.get("f1"), rc=row["rc"])
