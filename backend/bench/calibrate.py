@@ -10,8 +10,9 @@ each preset on the dragon benchmark scene (synthesised once; see ``bench sweep``
 
 ``expected_f1`` is F1@0.01 as a fraction (0.9 = 90 %). ``--from-results FILE`` writes the
 file from a sweep's ``results.jsonl`` instead of running anything; then each preset also
-gets ``recommended_overrides``: the knobs of the most accurate swept setting that fits the
-preset's time target, when it beats the preset by more than ``--margin`` F1 points.
+gets ``recommended_overrides`` (ReconstructConfig fields, as in ``PRESETS``): the settings of
+the most accurate swept run that fits the preset's time target, when it beats the preset by
+more than ``--margin`` F1 points.
 :func:`preset_for_budget` picks a preset for a time budget from the file."""
 
 from __future__ import annotations
@@ -27,9 +28,6 @@ PRESETS_FILE = REPO / "backend" / "presets.json"
 SCENE = "dragon"
 # time (minutes) and F1@0.01 (percent) each preset is meant to reach on the dragon; None: no limit
 TARGETS = {"draft": (3.0, 80.0), "balanced": (10.0, 90.0), "final": (None, None)}
-CLI_OPTIONS = {"max_size": "--max-size", "spp": "--spp", "views_per_step": "--views-per-step",
-               "iterations": "--iterations", "initial_faces": "--initial-faces", "max_levels": "--max-levels",
-               "time_budget_min": "--time-budget", "init": "--init"}
 
 
 def load(path: Path = PRESETS_FILE) -> dict:
@@ -75,18 +73,21 @@ def _target(name: str, row: dict) -> dict | None:
 
 
 def overrides(preset_knobs: dict, knobs: dict) -> dict:
-    """The ``reconstruct`` options that turn a preset's knobs into ``knobs``."""
+    """The ReconstructConfig fields (as in optimize/config.py's PRESETS) that turn a preset's
+    knobs into ``knobs``."""
     out = {}
     for k, v in knobs.items():
         if preset_knobs.get(k) == v:
             continue
         if k == "bounces":
-            out.update({"--integrator": "direct_projective"} if v == 1 else
-                       {"--integrator": "prb_projective", "--max-depth": v + 1})
-        elif k in CLI_OPTIONS and v is not None:
-            out[CLI_OPTIONS[k]] = v
+            out.update({"integrator": "direct_projective"} if v == 1 else {"integrator": "prb_projective",
+                                                                           "max_depth": v + 1})
+        elif k == "time_budget_min":
+            out["time_budget_s"] = None if v is None else 60.0 * v
+        elif k == "init":
+            out["init"] = None if v == "auto" else v
         else:
-            out[k] = v  # a config field without an option (e.g. level_iterations)
+            out[k] = v
     return out
 
 

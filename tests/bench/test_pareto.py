@@ -109,5 +109,9 @@ def test_settings_turn_into_reconstruct_options_and_knobs():
     for s in GRIDS["full"]:
         if s.name.startswith("draft:"):
             assert len(_pareto.changed(draft, s.knobs())) == 1, s.name
-    assert overrides(draft, dict(draft, max_size=128, bounces=2)) == {
-        "--max-size": 128, "--integrator": "prb_projective", "--max-depth": 3}
+    assert overrides(draft, dict(draft, max_size=128, bounces=2, time_budget_min=2.0)) == {
+        "max_size": 128, "integrator": "prb_projective", "max_depth": 3, "time_budget_s": 120.0}
+    # the fields are ReconstructConfig's, so the lead can paste them into PRESETS
+    from backend.optimize.config import ReconstructConfig
+    assert set(overrides(draft, dict(draft, max_size=128, bounces=2, time_budget_min=2.0))) <= set(
+        ReconstructConfig.__dataclass_fields__)
