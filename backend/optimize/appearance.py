@@ -1,0 +1,133 @@
+"""Appearance between geometry levels: the staged material schedule and the choice of
+light-transport effects.
+
+- ``--material staged``: mesh-colors material (backend.material) run by its schedule, one
+  stage after every geometry level and to the end once geometry has converged; re-voted
+  labels and a neutral restart after every re-mesh; ``result.glb`` at the end.
+- ``--effects auto`` (default): backend.render.effects measures, on renders of the current
+  estimate, which effects matter and picks the integrator, depth, shadow gradients and the
+  specular lobe; re-checked after every re-mesh and when materials become spatially varying.
+  ``all`` or a list forces them. Each decision is an ``effects`` event."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from ..capture.model import Capture
+from ..render import effects
+from ..render.scene import RenderSettings, SceneRenderer
+
+
+def _emitters(capture: Capture) -> list[str]:
+    kinds = ["point"] if capture.has_point_lights else []
+    return kinds + (["environment"] if capture.environment is not None else [])
+
+
+class Appearance:
+    def __init__(self, capture: Capture, config, emit):
+        self.capture, self.config, self.emit = capture, config, emit
+        self.measure, self.overrides, self.driver = self.check(capture, config)
+        self.decision: effects.EffectsDecision | None = None
+        self.history: list[dict] = []
+        self.seconds = 0.0
+
+    @staticmethod
+    def check(capture: Capture, config):
+        """Parse ``--effects`` and check material masks: bad input fails before any work.
+        Returns (measure, overrides, material driver or None)."""
+        try:
+            measure, overrides = effects.parse_effects(config.effects)
+        except ValueError as err:
+            from ..errors import InputError
+
+            raise InputError(None, str(err), "write --effects auto, all, or a list such as indirect,-shadows") from None
+        driver = None
+        if config.material == "staged":
+            from ..material.driver import MaterialDriver
+
+            driver = MaterialDriver(capture)  # raises InputError naming the frame of a bad mask
+        return measure, overrides, driver
+
+    # -- materials ---------------------------------------------------------------------------------
+    def initial_material(self, mesh, views):
+        """The staged material on the initial mesh, or None to keep the loop's own."""
+        if self.driver is None:
+            return None
+        return self.driver.material(mesh, [v.camera for v in views], [v.target for v in views], self._masks(views))
+
+    def _masks(self, views):
+        return [v.mask for v in views] if all(v.mask is not None for v in views) else None
+
+    def material_cycle(self, mesh, material, views, level: int) -> dict | None:
+        """One stage of the material schedule on the current geometry."""
+        if self.driver is None or self.driver.done:
+            return None
+        start = time.perf_counter()
+        stage_before = self.driver.schedule.stage
+        self.emit("stage", stage=f"material:{stage_before}", level=level, faces=mesh.n_faces)
+        renderer = self._renderer(mesh, material, views, geometry=False)
+        result = self.driver.cycle(renderer, [v.target for v in views], self._masks(views), material, self.emit)
+        self.seconds += time.perf_counter() - start
+        if self.driver.schedule.stage != stage_before and self.driver.schedule.stage == "specular":
+            self.decide(mesh, material, views, reason="materials became spatially varying")
+        return {"stage": stage_before, "loss": result.loss, "seconds": round(time.perf_counter() - start, 3)}
+
+    def on_remesh(self, mesh, material, views) -> None:
+        if self.driver is not None:
+            self.driver.on_remesh(mesh, material, [v.camera for v in views])
+        self.decide(mesh, material, views, reason="re-meshed")
+
+    def finish(self, folder, mesh, material) -> dict:
+        out = {"effects": self.history, "appearance_seconds": round(self.seconds, 3)}
+        if self.driver is not None:
+            from ..material.export import write_glb
+
+            write_glb(folder / "result.glb", mesh, material)
+            out["material_schedule"] = self.driver.report()
+        return out
+
+    # -- effects -----------------------------------------------------------------------------------
+    def decide(self, mesh, material, views, reason: str) -> None:
+        """Measure (or force) the effects and announce the decision."""
+        start = time.perf_counter()
+        cfg = effects.EffectsConfig(max_depth_probe=max(self.config.max_depth, 4))
+        probe = [v for v in views]
+        renderer = self._renderer(mesh, material, probe, geometry=False, settings=RenderSettings(spp=cfg.spp))
+        self.decision = effects.decide(renderer, [v.target for v in probe],
+                                       [v.mask if v.mask is not None else np.ones(v.target.shape[:2]) for v in probe],
+                                       _emitters(self.capture), cfg, self.overrides, self.measure)
+        if not self.decision.specular:
+            _disable_specular(material)
+        seconds = time.perf_counter() - start
+        self.seconds += seconds
+        enabled = {"max_depth": self.decision.max_depth, "shadows": self.decision.shadows,
+                   "specular": self.decision.specular, "silhouettes": self.decision.silhouettes,
+                   "emitters": self.decision.emitters}
+        record = {"reason": reason, "enabled": enabled, "measured": self.decision.measured,
+                  "why": self.decision.reasons, "forced": self.decision.forced, "seconds": round(seconds, 3)}
+        self.history.append(record)
+        self.emit("effects", **record)
+
+    def geometry_settings(self, base: RenderSettings) -> RenderSettings:
+        return base if self.decision is None else self.decision.settings(base, geometry=True)
+
+    def _renderer(self, mesh, material, views, geometry: bool, settings: RenderSettings | None = None):
+        base = settings or RenderSettings(spp=self.config.spp, max_depth=self.config.max_depth, integrator="prb")
+        if self.decision is not None:
+            base = self.decision.settings(base, geometry=geometry)
+        return SceneRenderer(mesh, material.field, [v.camera for v in views], [v.lights for v in views],
+                             self.capture.environment, base)
+
+
+def _disable_specular(material) -> None:
+    """The diffuse-only model: specular fixed at 0 and no longer trained."""
+    if hasattr(material, "make_constant"):  # mesh colors
+        material.make_constant("specular")
+        material.set_values("specular", np.zeros_like(material.values("specular")))
+    else:
+        values = material.values()
+        values["specular"] = np.zeros_like(values["specular"])
+        material.set_values(values)
+    material.trainable = tuple(t for t in material.trainable if t != "specular")
