@@ -284,8 +284,14 @@ class Reconstruction:
             if c.remesh == "always" or share > c.remesh_threshold:
                 target = self.budget.next_target(old.n_faces)
                 remeshed = poisson_from_samples(samples, old, target)
-                self.material.on_remesh(remeshed)
-                self.mesh = remeshed
+                report = inspect(remeshed)
+                if not report.closed_manifold:  # too few consistent samples (a tangled mesh): Poisson leaves holes
+                    self.emit("warning", message="re-meshing not applied: the rebuilt surface is not a closed manifold "
+                              f"({', '.join(report.issues)})")
+                    remeshed = None
+                else:
+                    self.material.on_remesh(remeshed)
+                    self.mesh = remeshed
             self._timed("remesh", start)
             self.levels[-1]["remesh"] = {"inconsistent_share": round(share, 5), "back_faces": samples.back_faces,
                                          "outside_masks": samples.outside_masks, "applied": remeshed is not None,
