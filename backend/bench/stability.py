@@ -200,6 +200,7 @@ def run_folder_problems(run: Path) -> list[str]:
     stated size with finite vertices and material in range, the resumable state loads,
     every event line parses and every other file reads (temporary files aside)."""
     from ..geometry.mesh import load_mesh
+    from ..material.model import MeshColorMaterial
     from ..optimize.material import ConstantMaterial
     from ..optimize.run_folder import RunFolder
 
@@ -224,7 +225,7 @@ def run_folder_problems(run: Path) -> list[str]:
     if (run / "state" / "state.json").exists():
         try:
             state, material = RunFolder(run).load_state()
-            ConstantMaterial.load(material)
+            (MeshColorMaterial if "resolution" in np.load(material).files else ConstantMaterial).load(material)
             if not np.all(np.isfinite(state["vertices"])):
                 problems.append("saved state has non-finite vertices")
         except Exception as err:
@@ -398,6 +399,17 @@ def degenerate_init(quick: bool):
     return Mesh(v, np.vstack([f, extra]))
 
 
+def tangled_init(quick: bool):
+    """A sphere after an oversized step: a cap of vertices pushed 1.6 radii down through the
+    opposite side, so the surface intersects itself."""
+    from ..synth.procedural import icosphere
+
+    mesh = icosphere(3, 0.7)
+    cap = mesh.vertices[:, 2] > 0.35
+    mesh.vertices[cap, 2] -= 1.6 * 0.7
+    return mesh
+
+
 def sphere_init(radius: float, subdivisions: int = 3):
     def build(quick: bool):
         from ..synth.procedural import icosphere
@@ -493,9 +505,11 @@ def pipeline_cases(quick: bool) -> dict[str, Setup]:
         "camera_inside_init": Setup("initial mesh enclosing the cameras", lit_blob, init=sphere_init(5.0),
                                     expect_error="encloses"),
         "spp_1": Setup("1 sample per pixel everywhere", lit_blob, {"spp": 1, "sppp": 1, "validation_spp": 1}),
-        "lr_100x": Setup("vertex and material steps 100x too large, re-meshing after each level", lit_blob,
-                         {"step": 10.0, "material_lr": 3.0, "material": "auto", "remesh": "always"},
-                         track_tangles=True),
+        "self_intersecting_init": Setup("a self-intersecting mesh from an oversized step, then re-meshed",
+                                        lit_blob, {"remesh": "always"}, init=tangled_init, track_tangles=True),
+        "lr_100x": Setup("vertex and material steps 100x too large" + ("" if quick else ", re-meshing"), lit_blob,
+                         {"step": 10.0, "material_lr": 3.0, "material": "auto",
+                          "remesh": "never" if quick else "always"}, track_tangles=True),
         "meshcolors_r0": Setup("mesh colors, r = 0 (one value per face)", lit_blob, {"initial_faces": 5120},
                                init=sphere_init(0.7), material=meshcolors(0)),
         "meshcolors_r8": Setup("mesh colors, r = 8", lit_blob, {"initial_faces": 5120}, init=sphere_init(0.7),
@@ -560,7 +574,8 @@ def judge(result: Result, log: StepLog, run: Path, outcome, setup: Setup) -> Non
     # every non-finite step was skipped, counted in the report and announced
     result.check(result.caught >= log.nonfinite_steps,
                  f"{log.nonfinite_steps} non-finite steps but only {result.caught} skipped")
-    warnings = [e["message"] for e in read_events(run) if e["event"] == "warning" and " skipped: " in e["message"]]
+    warnings = [e["message"] for e in read_events(run)
+                if e["event"] == "warning" and e["message"].startswith("step ") and " skipped: " in e["message"]]
     result.check(len(warnings) == result.caught, f"{len(warnings)} skip warnings for {result.caught} skipped steps")
     if setup.inject_nan:
         result.check(log.nonfinite_steps == len(setup.inject_nan) == result.caught,
@@ -569,6 +584,9 @@ def judge(result: Result, log: StepLog, run: Path, outcome, setup: Setup) -> Non
         result.check(result.caught > 0, "expected skipped steps, none occurred")
     if warnings:
         result.notes["skipped"] = sorted({w.split(" skipped: ")[1].split(" (")[0] for w in warnings})
+    others = [e["message"] for e in read_events(run) if e["event"] == "warning" and e["message"] not in warnings]
+    if others:
+        result.notes["warnings"] = others
     result.check(result.final_loss is not None and math.isfinite(result.final_loss), f"final loss {result.final_loss}")
     losses = [e["loss"] for e in read_events(run) if e["event"] == "progress" and e.get("loss") is not None]
     result.check(all(math.isfinite(x) for x in losses), "non-finite loss in the progress events")
@@ -598,7 +616,7 @@ def run_pipeline_case(name: str, setup: Setup, work: Path, quick: bool) -> Resul
 
     variant.choose()
     start = time.perf_counter()
-    result = Result(name)
+    result = Result(name, notes={"about": setup.about})
     work = Path(work)
     capture = setup.scene(quick).write(work / "capture")
     overrides = dict(setup.settings)
@@ -616,24 +634,6 @@ def run_pipeline_case(name: str, setup: Setup, work: Path, quick: bool) -> Resul
 
 
 # -- gradients against finite differences ------------------------------------------------------------------
-def _sphere_views(quick: bool, count: int = 2):
-    """Views of the blob rendered at 32 px under a lamp per camera (the targets)."""
-    from ..optimize.views import View
-    from ..render.fields import ConstantField
-    from ..render.scene import RenderSettings, SceneRenderer
-    from ..synth.procedural import blob
-
-    cams = orbit(count, 32)
-    lights = lamp_lights(cams)
-    truth = SceneRenderer(blob(3), ConstantField(0.6, 0.2, 0.4), cams, lights, settings=RenderSettings(spp=64),
-                          rgba=True)
-    views = []
-    for i, cam in enumerate(cams):
-        rgba = truth.render_numpy(i, seed=i)
-        views.append(View(f"{i}", cam, rgba[..., :3], rgba[..., 3], lights[i]))
-    return views
-
-
 def _target_views(count: int = 2):
     """The blob at 32 px from ``count`` cameras, each under its own lamp: the loss's targets."""
     from ..optimize.views import View
@@ -920,3 +920,144 @@ def full_disk(work: Path, quick: bool) -> Result:
                 result.problems += [f"after resume: {p}" for p in run_folder_problems(run)]
     result.seconds = round(time.perf_counter() - start, 1)
     return result
+
+
+# -- the benchmark ----------------------------------------------------------------------------------------------
+GRADIENT_CASES = {"gradient_geometry": gradient_geometry, "gradient_meshcolors": gradient_meshcolors}
+PROCESS_CASES = {"killed_mid_write": killed_mid_write, "full_disk": full_disk}
+
+
+def case_names(quick: bool) -> list[str]:
+    return list(pipeline_cases(quick)) + list(GRADIENT_CASES) + list(PROCESS_CASES)
+
+
+def run_case(name: str, work: Path, quick: bool) -> Result:
+    """Run one case in ``work`` (an empty folder)."""
+    if name in GRADIENT_CASES:
+        return GRADIENT_CASES[name](work, quick)
+    if name in PROCESS_CASES:
+        return PROCESS_CASES[name](work, quick)
+    cases = pipeline_cases(quick)
+    if name not in cases:
+        from ..errors import InputError
+
+        raise InputError(None, f"no stability case '{name}'", f"choose from {', '.join(case_names(quick))}")
+    return run_pipeline_case(name, cases[name], work, quick)
+
+
+def peak_rss_gb() -> float:
+    """Peak resident memory of this process so far (Linux reports kilobytes)."""
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / (1 << 20)
+
+
+def guarded(name: str, work: Path, quick: bool) -> dict:
+    """``run_case`` with a crash reported as a failed case; peak memory added."""
+    start = time.perf_counter()
+    try:
+        result = run_case(name, work, quick)
+    except Exception as err:  # the table reports a crash as a failure instead of stopping
+        result = Result(name, problems=[f"crashed: {type(err).__name__}: {err}"])
+        result.seconds = round(time.perf_counter() - start, 1)
+    result.peak_rss_gb = round(peak_rss_gb(), 2)
+    if name.startswith("faces_"):
+        result.check(result.peak_rss_gb < MEMORY_LIMIT_GB, f"peak memory {result.peak_rss_gb} GB")
+    return result.to_json()
+
+
+def _child(name: str, work: str, quick: bool, conn) -> None:
+    conn.send(guarded(name, Path(work), quick))
+    conn.close()
+
+
+def isolated(name: str, work: Path, quick: bool) -> dict:
+    """``guarded`` in a fresh process (its own peak memory; a hard crash is a failure too)."""
+    import multiprocessing
+
+    ctx = multiprocessing.get_context("spawn")
+    receive, send = ctx.Pipe(duplex=False)
+    proc = ctx.Process(target=_child, args=(name, str(work), quick, send))
+    proc.start()
+    send.close()
+    try:
+        record = receive.recv()
+    except EOFError:
+        record = Result(name, problems=[f"process died (exit code {proc.exitcode})"]).to_json()
+    proc.join()
+    if proc.exitcode not in (0, None) and record.get("passed"):
+        record["problems"].append(f"process exit code {proc.exitcode}")
+        record["passed"] = False
+    return record
+
+
+def _number(x, digits: int = 4) -> str:
+    return "-" if x is None else f"{x:.{digits}g}"
+
+
+def table(records: list[dict]) -> str:
+    """The report: one row per case."""
+    head = ["case", "steps", "caught", "final loss", "peak GB", "seconds", "result", "note"]
+    rows = []
+    for r in records:
+        notes = r["notes"]
+        if r["problems"]:
+            note = r["problems"][0]
+        elif "relative_errors" in notes:
+            note = "max relative error " + f"{100 * max(notes['relative_errors'].values()):.1f}% (final loss column)"
+        elif "error" in notes:
+            note = "input error: " + notes["error"].split(": ", 1)[-1]
+        elif "skipped" in notes:
+            note = "skipped: " + "; ".join(notes["skipped"])
+        elif "warnings" in notes:
+            note = notes["warnings"][-1]
+        elif "kills" in notes:
+            note = f"{notes['kills']} kills ({notes['killed_during_a_write']} mid-write), resumed"
+        elif r["case"] == "full_disk":
+            note = "; ".join(f"{k}: exit {v['exit']}" for k, v in notes.items() if isinstance(v, dict))
+        else:
+            note = ""
+        rows.append([r["case"], str(r["steps"]), str(r["caught"]), _number(r["final_loss"]),
+                     _number(r["peak_rss_gb"], 3), f"{r['seconds']:.1f}", "pass" if r["passed"] else "FAIL",
+                     note[:110]])
+    widths = [max(len(head[i]), *(len(row[i]) for row in rows)) for i in range(len(head) - 1)]
+    lines = ["  ".join(h.ljust(w) for h, w in zip(head, widths)) + "  " + head[-1]]
+    lines.append("  ".join("-" * w for w in widths) + "  " + "-" * 4)
+    lines += ["  ".join(c.ljust(w) for c, w in zip(row, widths)) + "  " + row[-1] for row in rows]
+    return "\n".join(lines)
+
+
+def add_arguments(parser) -> None:
+    parser.add_argument("--quick", action="store_true",
+                        help="the tiny versions the tests run (32 px, a dozen steps, 50k-face case), in this process")
+    parser.add_argument("--case", action="append", metavar="NAME", help="run only these cases (repeatable)")
+    parser.add_argument("--out", type=Path, default=REPO / "runs" / "bench-stability",
+                        help="work folder (replaced); results.json is written there")
+    parser.add_argument("--variant", help="Mitsuba variant (default: automatic)")
+
+
+def run(args) -> int:
+    from .. import fsio, variant
+
+    if args.variant:
+        os.environ["SFT_VARIANT"] = args.variant
+    variant.choose(args.variant)
+    names = args.case or case_names(args.quick)
+    for name in names:
+        if name not in case_names(args.quick):
+            from ..errors import InputError
+
+            raise InputError(None, f"no stability case '{name}'", f"choose from {', '.join(case_names(args.quick))}")
+    out = Path(args.out)
+    shutil.rmtree(out / "cases", ignore_errors=True)
+    records = []
+    for name in names:
+        work = out / "cases" / name
+        work.mkdir(parents=True, exist_ok=True)
+        records.append(guarded(name, work, True) if args.quick else isolated(name, work, False))
+        print(f"{name}: {'pass' if records[-1]['passed'] else 'FAIL'} ({records[-1]['seconds']:.1f} s)",
+              file=sys.stderr, flush=True)
+    fsio.write_json(out / "results.json", {"quick": args.quick, "cases": records}, indent=1)
+    print(table(records))
+    passed = sum(r["passed"] for r in records)
+    print(f"\n{passed}/{len(records)} passed" + ("" if args.quick else "; peak GB per case, each in its own process")
+          + (" (peak GB: this process so far)" if args.quick else ""))
+    return 0 if passed == len(records) else 1
