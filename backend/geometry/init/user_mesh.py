@@ -49,7 +49,8 @@ def check_initial_mesh(mesh: Mesh, path, cameras: list[Camera], warn) -> Mesh:
     inside = int(enclosed(mesh, [c.centre for c in cameras]).sum())
     require(inside == 0, path, f"the initial mesh encloses {inside} of the {len(cameras)} cameras "
             "(the renderer must see it from outside)",
-            "scale the mesh down or move it so that every camera is outside it, or use --init carve")
+            "give an initial mesh that leaves every camera outside it (check its scale and units), "
+            "or choose another --init")
     return orient_outward(mesh)
 
 
