@@ -6,6 +6,7 @@ state/ (for --resume), result.ply and report.json. Exit codes: 0 done, 1 interna
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 from .. import variant
@@ -34,9 +35,16 @@ def add_arguments(parser):
                         help=f"long side of the first level's images ({d.coarse_size})")
     parser.add_argument("--views-per-step", type=int, metavar="K", help=f"views rendered per step ({d.views_per_step})")
     parser.add_argument("--material", default=d.material,
-                        help="'auto' (one constant material, estimated) or known:ALBEDO_R,G,B:SPECULAR:ROUGHNESS")
+                        help="'auto' (one constant material, estimated), 'staged' (spatially varying mesh colors: "
+                             "constants, then diffuse, then specular) or known:ALBEDO_R,G,B:SPECULAR:ROUGHNESS")
+    parser.add_argument("--effects", default=d.effects,
+                        help="light-transport effects: 'auto' (measured on the scene), 'all', or a list of "
+                             "indirect, shadows, specular, silhouettes (prefix '-' to force one off, e.g. auto,-shadows)")
     parser.add_argument("--initial-faces", type=int, help=f"faces of the initial mesh ({d.initial_faces})")
     parser.add_argument("--max-levels", type=int, help=f"most coarse-to-fine levels ({d.max_levels})")
+    parser.add_argument("--level-iterations", type=int, help=f"most steps per level ({d.level_iterations})")
+    parser.add_argument("--step", type=float,
+                        help=f"largest vertex step per iteration, in mean edge lengths ({d.step})")
     parser.add_argument("--integrator", choices=["direct_projective", "prb_projective"], help=f"({d.integrator})")
     parser.add_argument("--max-depth", type=int, help=f"path depth for prb_projective ({d.max_depth})")
     parser.add_argument("--spp", type=int, help=f"samples per pixel per step ({d.spp})")
@@ -47,14 +55,14 @@ def add_arguments(parser):
     parser.add_argument("--variant", help="Mitsuba variant (default: automatic)")
 
 
-OVERRIDES = ("init", "material", "initial_faces", "iterations", "seed", "max_size", "coarse_size", "views_per_step",
-             "integrator", "max_depth", "spp", "remesh", "max_levels", "track_metrics")
+OVERRIDES = ("init", "material", "effects", "initial_faces", "iterations", "seed", "max_size", "coarse_size", "views_per_step",
+             "integrator", "max_depth", "spp", "remesh", "max_levels", "level_iterations", "step", "track_metrics")
 
 
 def config_from_args(args) -> ReconstructConfig:
     """Defaults, then the preset, then the options given."""
     for name in ("max_size", "coarse_size", "views_per_step", "initial_faces", "spp", "max_levels", "iterations",
-                 "time_budget", "max_depth"):
+                 "time_budget", "max_depth", "level_iterations", "step"):
         value = getattr(args, name)
         flag = "--" + name.replace("_", "-")
         require(value is None or value > 0, None, f"{flag} must be positive (got {value})", f"give {flag} a value above 0")
@@ -77,11 +85,15 @@ def run(args) -> int:
     config = config_from_args(args)
     parse_spec(config.material)  # bad input is reported before anything is written
     capture = load_capture(args.capture)
+    chosen = variant.choose(args.variant)
+    from ..optimize.appearance import Appearance
+
+    Appearance.check(capture, config)
     folder = RunFolder.create(args.out, resume=args.resume, overwrite=args.overwrite)
     emit = Emitter(log_path=folder.events)
     try:
         emit("start", run=str(folder.path), capture=str(args.capture), settings=dataclasses.asdict(config))
-        variant.choose(args.variant, emit)
+        emit("variant", variant=chosen, llvm=os.environ.get("DRJIT_LIBLLVM_PATH"))
         from ..optimize.loop import Reconstruction
 
         material = None if args.resume else ConstantMaterial.from_spec(config.material)

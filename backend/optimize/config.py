@@ -9,7 +9,8 @@ from dataclasses import dataclass
 class ReconstructConfig:
     # what to start from and what to fit
     init: str | None = None  # carve | sphere | box | spheres | points | FILE; None = by the capture
-    material: str = "auto"  # auto (constant, estimated) or known:R,G,B:SPEC:ROUGH
+    material: str = "auto"  # auto (constant, estimated), staged (mesh colors schedule) or known:R,G,B:SPEC:ROUGH
+    effects: str = "auto"  # light-transport effects: auto (measured), all, or a list (see render/effects.py)
     initial_faces: int = 5000  # face count of the initial mesh; the budget D starts at twice this
     max_faces: int = 250_000  # refinement stops once the budget would exceed this
     # limits
@@ -49,7 +50,7 @@ class ReconstructConfig:
     remesh: str = "auto"
     remesh_threshold: float = 0.002
     # output
-    snapshot_every_s: float = 10.0
+    snapshot_every_s: float = 1.0  # the add-on streams at least one update per second
     track_metrics: bool = False  # metrics after every level (time excluded from the budget)
 
 

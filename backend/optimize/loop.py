@@ -25,6 +25,7 @@ from ..geometry.subdivide import midpoint
 from ..geometry.topology import enclosed, inspect, mean_edge_length
 from ..render.scene import RenderSettings
 from .. import fsio
+from .appearance import Appearance
 from .config import ReconstructConfig
 from .material import ConstantMaterial
 from .objective import Objective, seed_for
@@ -63,6 +64,7 @@ class Reconstruction:
         self.init_info: dict = {}
         self.last_snapshot = 0.0
         self.viewset = ViewSet(capture, config.max_size)
+        self.appearance = Appearance(capture, config, emit)
         self.truth = self._truth()
         self.progress: Progress | None = None
 
@@ -114,6 +116,9 @@ class Reconstruction:
                                        warn=lambda message: self.emit("warning", message=message))
         if self.material is None:
             self.material = ConstantMaterial.from_spec(c.material)
+        coarse = self.viewset.at(c.coarse_size)
+        self.material = self.appearance.initial_material(self.mesh, coarse) or self.material
+        self.appearance.decide(self.mesh, self.material, coarse, reason="initial mesh")
         self.budget = FaceBudget(self.mesh.n_faces)
         self._timed("init", start)
         report = inspect(self.mesh)
@@ -137,6 +142,7 @@ class Reconstruction:
         self.timings, self.init_info = state["timings"], state["init"]
         self.before = state["seconds"]
         self.emit("stage", stage="resume", level=self.level, faces=self.mesh.n_faces)
+        self.appearance.decide(self.mesh, self.material, self.viewset.at(self.config.coarse_size), reason="resumed")
 
     # -- the schedule ------------------------------------------------------------------------------
     def _optimise(self) -> None:
@@ -147,6 +153,7 @@ class Reconstruction:
             if self.phase == "level":
                 record = self._run_level()
                 self.phase = "transition"
+                self._material_cycle(record)
                 self._snapshot(loss=record["loss"])
                 previous = self.levels[-2] if len(self.levels) > 1 else None
                 if (self._out_of_budget() or self.level + 1 >= c.max_levels
@@ -156,11 +163,32 @@ class Reconstruction:
             self._transition()
             self.level += 1
             self.phase = "level"
+        self._finish_materials()
+
+    def _material_cycle(self, record: dict) -> None:
+        """One stage of the staged material schedule on this level's geometry and views."""
+        size = level_size(self.level, self.config.coarse_size, self.config.max_size)
+        result = self.appearance.material_cycle(self.mesh, self.material, self.viewset.at(size), self.level)
+        if result is not None:
+            record.setdefault("material", []).append(result)
+
+    def _finish_materials(self, most: int = 12) -> None:
+        """Once geometry has converged: material stages until their schedule ends."""
+        views = self.viewset.at(self.config.max_size)
+        for _ in range(most):
+            if self._out_of_budget():
+                break
+            result = self.appearance.material_cycle(self.mesh, self.material, views, self.level)
+            if result is None:
+                break
+            self.levels[-1].setdefault("material", []).append(result)
+            self._snapshot(loss=result["loss"])
 
     def _settings(self) -> RenderSettings:
         c = self.config
-        return RenderSettings(spp=c.spp, max_depth=c.max_depth, integrator=c.integrator, hide_emitters=True,
-                              sppc=c.spp, sppp=c.sppp, sppi=0)
+        return self.appearance.geometry_settings(
+            RenderSettings(spp=c.spp, max_depth=c.max_depth, integrator=c.integrator, hide_emitters=True,
+                           sppc=c.spp, sppp=c.sppp, sppi=0))
 
     def _run_level(self) -> dict:
         c = self.config
@@ -291,6 +319,7 @@ class Reconstruction:
                     remeshed = None
                 else:
                     self.material.on_remesh(remeshed)
+                    self.appearance.on_remesh(remeshed, self.material, self.viewset.at(c.coarse_size))
                     self.mesh = remeshed
             self._timed("remesh", start)
             self.levels[-1]["remesh"] = {"inconsistent_share": round(share, 5), "back_faces": samples.back_faces,
@@ -350,6 +379,7 @@ class Reconstruction:
             "timings": {**self.timings, "total": round(self.elapsed(), 3), "metrics_excluded": round(self.excluded, 3)},
             "material": self.material.summary(), "metrics": metrics,
             "premultiplied_views": self.viewset.premultiplied,
+            **self.appearance.finish(self.folder.path, self.mesh, self.material),
         }
         fsio.write_json(self.folder.path / "report.json", report)
         self.emit("done", result="result.ply", report="report.json", metrics=metrics)

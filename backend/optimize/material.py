@@ -40,10 +40,12 @@ def _sigmoid(z, lo: float, hi: float):
 
 
 def parse_spec(spec: str) -> tuple[list[float], float, float] | None:
-    """None for ``auto``; (albedo RGB, specular, roughness) for ``known:R,G,B:SPEC:ROUGH``."""
-    if spec == "auto":
+    """None for an estimated material (``auto``, or ``staged`` whose mesh colors start from
+    these constants); (albedo RGB, specular, roughness) for ``known:R,G,B:SPEC:ROUGH``."""
+    if spec in ("auto", "staged"):
         return None
-    fix = "write --material auto or --material known:ALBEDO_R,G,B:SPECULAR:ROUGHNESS, e.g. known:0.6,0.6,0.6:0.3:0.3"
+    fix = ("write --material auto, staged or known:ALBEDO_R,G,B:SPECULAR:ROUGHNESS, "
+           "e.g. known:0.6,0.6,0.6:0.3:0.3")
     parts = spec.split(":")
     try:
         if parts[0] != "known" or len(parts) != 4:
