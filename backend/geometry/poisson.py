@@ -28,7 +28,7 @@ def poisson(points: np.ndarray, normals: np.ndarray, depth: int = 8, point_weigh
     ms = pymeshlab.MeshSet()
     ms.add_mesh(pymeshlab.Mesh(vertex_matrix=points, v_normals_matrix=normals))
     ms.generate_surface_reconstruction_screened_poisson(depth=int(depth), pointweight=point_weight,
-                                                        samplespernode=1.5, preclean=True, threads=2)
+                                                        samplespernode=1.5, preclean=True, threads=1)
     m = ms.current_mesh()
     mesh = clean(Mesh(m.vertex_matrix(), m.face_matrix()))
     if mesh.n_faces == 0:

@@ -6,7 +6,9 @@ surface from inside: inverted or self-intersecting sheets) and hits that project
 mask in any view that sees them (geometry the silhouettes forbid, such as a membrane over a
 hole) are dropped. Screened Poisson reconstruction of the remaining oriented points gives a
 closed manifold without interior or self-intersecting triangles, whose genus may differ
-from the input's; it is then simplified to the face target."""
+from the input's. Screened Poisson closes every gap, including the one the dropped hits left
+over a hole, so the result is then cut to the visual hull (its intersection with the masks'
+cones) and simplified to the face target."""
 
 from __future__ import annotations
 
@@ -18,6 +20,7 @@ from ..capture.model import Camera
 from .mesh import Mesh
 from .poisson import depth_for_resolution, poisson
 from .simplify import edge_length_for_faces, simplify
+from .topology import keep_largest_components
 
 
 @dataclass
@@ -98,15 +101,51 @@ def sample_surface(mesh: Mesh, cameras: list[Camera], masks: list[np.ndarray] | 
     return SurfaceSamples(p, n, len(o), back_faces, dropped)
 
 
+def signed_distance(mesh: Mesh, points: np.ndarray, samples: int = 200_000) -> np.ndarray:
+    """Approximate signed distance (negative inside) of ``points`` to a closed mesh: the
+    distance to the nearest of dense surface samples, signed by that sample's face normal."""
+    from scipy.spatial import cKDTree
+
+    from ..metrics.geometry import sample_surface as surface_points
+
+    s = surface_points(mesh, samples, seed=0)
+    normals = mesh.face_normals()[s.faces]
+    d, i = cKDTree(s.points).query(points, workers=-1)
+    side = np.einsum("ij,ij->i", points - s.points[i], normals[i])
+    return np.where(side < 0, -d, d)
+
+
+def clip_to_masks(mesh: Mesh, cameras: list[Camera], masks: list[np.ndarray], spacing: float,
+                  max_cells: int = 160) -> Mesh:
+    """The part of a closed mesh that projects inside every mask (its intersection with the
+    visual hull), meshed on a grid of about ``spacing``: what the silhouettes forbid (a
+    membrane over a hole) is cut away, so the genus can grow."""
+    from .init.hull import HullConfig, MaskView, grid_points, sample
+    from .isosurface import marching_tetrahedra
+
+    lo, hi = mesh.bounds()
+    spacing = max(spacing, float((hi - lo).max()) / max_cells)
+    lo, hi = lo - 3 * spacing, hi + 3 * spacing
+    pts, shape, spacing = grid_points(lo, hi, int(np.ceil(float((hi - lo).max()) / spacing)))
+    occupancy = np.clip(0.5 - signed_distance(mesh, pts) / (2 * spacing), 0.0, 1.0)
+    views = [MaskView(c, m) for c, m in zip(cameras, masks)]
+    hull = sample(views, pts, HullConfig(min_view_share=0.0))
+    field = np.minimum(occupancy, hull).reshape(shape)
+    return keep_largest_components(marching_tetrahedra(field, 0.5, lo, spacing), 0.02)
+
+
 def poisson_from_samples(samples: SurfaceSamples, mesh: Mesh, target_faces: int,
-                         config: RemeshConfig | None = None) -> Mesh:
+                         config: RemeshConfig | None = None, cameras: list[Camera] | None = None,
+                         masks: list[np.ndarray] | None = None) -> Mesh:
     """Screened Poisson surface of the samples at the resolution of ``target_faces`` faces
-    over ``mesh``'s area, simplified to at most ``target_faces``."""
+    over ``mesh``'s area, cut to the masks when given, simplified to at most ``target_faces``."""
     config = config or RemeshConfig()
     lo, hi = mesh.bounds()
     spacing = edge_length_for_faces(mesh, target_faces) / config.cells_per_edge
     depth = depth_for_resolution(float((hi - lo).max()), spacing, hi=config.max_depth)
     rebuilt = poisson(samples.points, samples.normals, depth=depth, point_weight=config.point_weight)
+    if masks is not None and cameras is not None:
+        rebuilt = clip_to_masks(rebuilt, cameras, masks, spacing)
     return simplify(rebuilt, target_faces)
 
 
@@ -114,4 +153,4 @@ def remesh(mesh: Mesh, cameras: list[Camera], masks: list[np.ndarray] | None, ta
            config: RemeshConfig | None = None) -> tuple[Mesh, SurfaceSamples]:
     """Rebuild ``mesh`` from its ray-cast samples; at most ``target_faces`` faces."""
     samples = sample_surface(mesh, cameras, masks, config)
-    return poisson_from_samples(samples, mesh, target_faces, config), samples
+    return poisson_from_samples(samples, mesh, target_faces, config, cameras, masks), samples

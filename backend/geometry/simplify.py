@@ -26,9 +26,11 @@ def simplify(mesh: Mesh, target_faces: int, preserve_topology: bool = True) -> M
     ms.add_mesh(pymeshlab.Mesh(mesh.vertices, mesh.faces))
     goal = target_faces
     for _ in range(6):  # the collapse may stop a little above its goal: aim lower until it fits
+        # planar quadrics: a midpoint-subdivided mesh is flat inside each old face, where plain
+        # quadrics are singular and "optimal" placement throws vertices far off the surface
         ms.meshing_decimation_quadric_edge_collapse(targetfacenum=goal, qualitythr=0.3,
-                                                    preservetopology=preserve_topology,
-                                                    optimalplacement=True, autoclean=True)
+                                                    preservetopology=preserve_topology, preservenormal=True,
+                                                    planarquadric=True, optimalplacement=True, autoclean=True)
         if ms.current_mesh().face_number() <= target_faces:
             break
         goal = max(4, int(goal * 0.97))

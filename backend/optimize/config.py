@@ -32,7 +32,7 @@ class ReconstructConfig:
     tone: str = "log"  # loss on log(1 + x / mean radiance) ("linear": the paper's plain MSE)
     lambda_: float = 20.0  # Large Steps smoothing (I + lambda L)
     step: float = 0.1  # largest step per iteration, as a fraction of the mean edge length
-    clip: float = 10.0  # per-vertex gradients are capped at clip x their median length (0: off)
+    clip: float = 99.5  # per-vertex gradient lengths are capped at this percentile (0: off)
     material_warmup: int = 60  # material-only steps before the first geometry step (estimated material)
     material_lr: float = 0.03  # Adam step on material latents (logits)
     # convergence (see backend.optimize.schedule)

@@ -125,7 +125,7 @@ class Reconstruction:
         self.init_info = {"kind": kind, "faces": self.mesh.n_faces, "genus": report.genus,
                           "seconds": round(time.perf_counter() - start, 3)}
         if self.truth is not None:
-            self.init_info["metrics"] = self._metrics(self.mesh, METRIC_SAMPLES_TRACKING)
+            self.init_info["metrics"] = self._metrics(self.mesh)
         self._snapshot(loss=None)
 
     def _load_state(self) -> None:
@@ -311,7 +311,7 @@ class Reconstruction:
             remeshed = None
             if c.remesh == "always" or share > c.remesh_threshold:
                 target = self.budget.next_target(old.n_faces)
-                remeshed = poisson_from_samples(samples, old, target)
+                remeshed = poisson_from_samples(samples, old, target, cameras=cameras, masks=masks)
                 report = inspect(remeshed)
                 if not report.closed_manifold:  # too few consistent samples (a tangled mesh): Poisson leaves holes
                     self.emit("warning", message="re-meshing not applied: the rebuilt surface is not a closed manifold "
@@ -322,7 +322,8 @@ class Reconstruction:
                     self.appearance.on_remesh(remeshed, self.material, self.viewset.at(c.coarse_size))
                     self.mesh = remeshed
             self._timed("remesh", start)
-            self.levels[-1]["remesh"] = {"inconsistent_share": round(share, 5), "back_faces": samples.back_faces,
+            self.levels[-1]["remesh"] = {"seconds": round(time.perf_counter() - start, 3),
+                                         "inconsistent_share": round(share, 5), "back_faces": samples.back_faces,
                                          "outside_masks": samples.outside_masks, "applied": remeshed is not None,
                                          "faces": None if remeshed is None else remeshed.n_faces,
                                          "genus": None if remeshed is None else inspect(remeshed).genus}

@@ -107,17 +107,18 @@ class Adam:
         self.state.clear()
 
 
-def clip_outliers(grad: np.ndarray, factor: float) -> np.ndarray:
-    """Scale down per-vertex gradients longer than ``factor`` x the median nonzero length.
+def clip_outliers(grad: np.ndarray, percentile: float) -> np.ndarray:
+    """Cap per-vertex gradient lengths at their ``percentile``-th percentile (0: no cap).
 
     Monte Carlo gradients of a path-traced loss are heavy-tailed (a few vertices under a
-    highlight or at a grazing angle get most of the energy); the Laplacian preconditioner
-    would spread such spikes over whole regions."""
-    if not factor:
+    highlight or at a grazing angle get most of the energy) and the Laplacian
+    preconditioner would spread such spikes over whole regions. Only the top tail is
+    touched: a cap relative to the median would also flatten genuine, localised signal
+    (a dent in an otherwise converged surface)."""
+    if not percentile:
         return grad
     n = np.linalg.norm(grad, axis=1)
-    nz = n[n > 0]
-    if not nz.size:
+    if not np.any(n > 0):
         return grad
-    cap = factor * float(np.median(nz))
+    cap = float(np.percentile(n, percentile))
     return grad * np.minimum(1.0, cap / np.maximum(n, 1e-30))[:, None]

@@ -101,6 +101,18 @@ def test_simplify_never_exceeds_its_target():
         assert inspect(out).closed_manifold
 
 
+def test_simplifying_a_subdivided_mesh_keeps_it_on_the_surface():
+    """Midpoint subdivision makes each old face flat; simplification must not throw vertices off."""
+    mesh = icosphere(3)
+    budget = FaceBudget(mesh.n_faces)
+    for _ in range(4):
+        mesh, _ = budget.refine(mesh)
+        radius = np.linalg.norm(mesh.vertices, axis=1)
+        assert radius.max() < 1.0 + 1e-3 and radius.min() > 0.99
+        centre = mesh.vertices[mesh.faces].mean(1)
+        assert np.all(np.einsum("ij,ij->i", mesh.face_normals(), centre) > 0.9 * np.linalg.norm(centre, axis=1))
+
+
 def test_face_budget_is_honoured_and_grows():
     mesh = icosphere(3)  # 1280 faces
     budget = FaceBudget(mesh.n_faces)

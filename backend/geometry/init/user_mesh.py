@@ -15,13 +15,16 @@ from ..topology import clean, enclosed, inspect, orient_outward, repair
 FIX = "give a closed triangle mesh in the capture's world frame, or use --init carve"
 
 
-def in_view_share(mesh: Mesh, cameras: list[Camera]) -> float:
-    """Share of vertices that project inside at least one camera's frame, in front of it."""
-    seen = np.zeros(mesh.n_vertices, bool)
+def in_view_share(mesh: Mesh, cameras: list[Camera], min_view_share: float = 0.5) -> float:
+    """Share of vertices inside the cameras' common view: in front of and inside the frame of
+    at least ``min_view_share`` of the cameras. (A mesh far away along one camera's axis is
+    inside that camera's frustum but outside what the capture looks at.)"""
+    seen = np.zeros(mesh.n_vertices, np.int64)
     for cam in cameras:
         uv, depth = cam.project(mesh.vertices)
-        seen |= (depth > 0) & (uv[:, 0] >= 0) & (uv[:, 0] <= cam.width) & (uv[:, 1] >= 0) & (uv[:, 1] <= cam.height)
-    return float(seen.mean()) if len(seen) else 0.0
+        seen += (depth > 0) & (uv[:, 0] >= 0) & (uv[:, 0] <= cam.width) & (uv[:, 1] >= 0) & (uv[:, 1] <= cam.height)
+    need = max(1, int(np.ceil(min_view_share * len(cameras))))
+    return float(np.mean(seen >= need)) if len(seen) else 0.0
 
 
 def check_initial_mesh(mesh: Mesh, path, cameras: list[Camera], warn) -> Mesh:
@@ -34,10 +37,11 @@ def check_initial_mesh(mesh: Mesh, path, cameras: list[Camera], warn) -> Mesh:
     require(mesh.n_faces >= 4 and float(mesh.face_areas().sum()) > 0, path,
             "the initial mesh has no surface area", FIX)
     share = in_view_share(mesh, cameras)
-    require(share > 0, path, "the initial mesh lies outside every camera's view",
+    require(share > 0, path, "the initial mesh lies outside the cameras' common view (no vertex is in the frame "
+            "of half the cameras)",
             "check the mesh's position, units and up axis against the capture, or use --init carve")
     if share < 0.5:
-        warn(f"{Path(str(path)).name}: only {100 * share:.0f}% of the initial mesh is in any camera's view")
+        warn(f"{Path(str(path)).name}: only {100 * share:.0f}% of the initial mesh is in the cameras' common view")
     report = inspect(mesh)
     if not report.closed_manifold:
         mesh, notes = repair(mesh)

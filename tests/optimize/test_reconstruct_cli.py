@@ -1,0 +1,172 @@
+"""`python -m backend reconstruct` end to end in subprocesses: outputs, protocol, cancel, resume,
+bad input. One tiny synthetic capture (the built-in object, 12 views at 40 px) serves all."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from backend.geometry.mesh import Mesh, load_mesh, save_mesh
+from backend.geometry.topology import inspect
+from backend.synth.procedural import icosphere
+from tests.helpers import REPO, run_cli
+
+FAST = ["--max-size", "40", "--coarse-size", "20", "--initial-faces", "1500", "--spp", "8",
+        "--material", "known:0.6,0.6,0.6:0.25:0.35"]
+
+
+@pytest.fixture(scope="module")
+def capture(tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("blob") / "capture"
+    run_cli("synth", "--out", out, "--views", 12, "--resolution", 40, "--spp", 32, "--held-out", 0,
+            "--albedo", "0.6,0.6,0.6", check=True)
+    return out
+
+
+def events(run: Path) -> list[dict]:
+    return [json.loads(line) for line in (run / "events.jsonl").read_text().splitlines()]
+
+
+def start(capture: Path, run: Path, *extra) -> subprocess.Popen:
+    env = dict(os.environ, PYTHONPATH=str(REPO), PYTHONUNBUFFERED="1")
+    return subprocess.Popen([sys.executable, "-m", "backend", "reconstruct", str(capture), "--out", str(run),
+                             *FAST, *map(str, extra)], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True, env=env, cwd=REPO)
+
+
+def wait_for_geometry_steps(proc: subprocess.Popen, steps: int, timeout: float = 120) -> list[dict]:
+    seen, deadline = [], time.monotonic() + timeout
+    for line in proc.stdout:
+        seen.append(json.loads(line))
+        e = seen[-1]
+        if e["event"] == "progress" and e["stage"] == "geometry" and e["iteration"] >= steps:
+            return seen
+        assert time.monotonic() < deadline, "no geometry progress in time"
+    raise AssertionError(f"process ended early: {proc.wait()} {proc.stderr.read()[-2000:]}")
+
+
+def check_snapshot(run: Path) -> dict:
+    snap = json.loads((run / "snapshot.json").read_text())
+    mesh = load_mesh(run / snap["mesh"])
+    assert mesh.n_faces == snap["faces"] and mesh.vertex_colors is not None
+    assert set(mesh.attributes) == {"specular", "roughness"}
+    assert len(list((run / "snapshots").glob("*.ply"))) <= 2
+    return snap
+
+
+def test_reconstruct_end_to_end(capture, tmp_path):
+    run = tmp_path / "run"
+    proc = run_cli("reconstruct", capture, "--out", run, "--init", "sphere", "--iterations", 120, *FAST,
+                   "--track-metrics", timeout=300)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    stdout = [json.loads(line) for line in proc.stdout.splitlines()]
+    log = events(run)
+    assert [e["event"] for e in stdout] == [e["event"] for e in log]  # the same lines on stdout and on disk
+    kinds = [e["event"] for e in log]
+    assert kinds[:2] == ["start", "variant"] and kinds[-1] == "done"
+    assert {"stage", "progress", "snapshot"} <= set(kinds)
+    progress = [e for e in log if e["event"] == "progress"]
+    for e in progress:
+        assert {"stage", "level", "iteration", "iterations", "loss", "faces", "seconds", "fraction", "eta_s"} <= set(e)
+        assert 0 <= e["fraction"] <= 1
+    gaps = np.diff([e["time"] for e in log if e["event"] in ("progress", "done")])
+    assert gaps.max() < 1.6, "progress must arrive at least about once per second"
+
+    report = json.loads((run / "report.json").read_text())
+    result = load_mesh(run / "result.ply")
+    assert result.n_faces == report["result"]["faces"] and inspect(result).closed_manifold
+    snap = check_snapshot(run)
+    assert snap["iteration"] == report["result"]["iterations"] == 120
+    done = log[-1]
+    assert done["result"] == "result.ply" and done["report"] == "report.json"
+    assert done["metrics"]["f1@0.01"] == report["metrics"]["f1@0.01"]
+    levels = report["levels"]
+    assert levels[0]["loss"] < levels[0]["loss_start"]  # the validation loss went down
+    assert report["metrics"]["chamfer_l1"] < report["init"]["metrics"]["chamfer_l1"]
+    assert report["metrics"]["f1@0.01"] > report["init"]["metrics"]["f1@0.01"]
+    assert report["skipped_steps"] == 0 and report["settings"]["seed"] == 0
+    assert set(report["timings"]) >= {"init", "geometry", "total"}
+
+
+def test_stop_file_cancels_with_an_intact_snapshot_and_resume_finishes(capture, tmp_path):
+    run = tmp_path / "run"
+    proc = start(capture, run, "--iterations", 60)
+    wait_for_geometry_steps(proc, 5)
+    (run / "STOP").touch()
+    out, err = proc.communicate(timeout=120)
+    assert proc.returncode == 130, err[-2000:]
+    log = events(run)
+    assert log[-1]["event"] == "cancelled" and log[-1]["snapshot"]
+    snap = check_snapshot(run)
+    assert log[-1]["snapshot"] == snap["mesh"] and snap["iteration"] >= 5
+    assert not (run / "result.ply").exists()
+    state = json.loads((run / "state" / "state.json").read_text())
+    assert state["iteration"] == snap["iteration"]
+
+    resumed = run_cli("reconstruct", capture, "--out", run, "--resume", "--iterations", 60, *FAST, timeout=300)
+    assert resumed.returncode == 0, resumed.stderr[-3000:]
+    log = events(run)
+    kinds = [e["event"] for e in log]
+    assert kinds.count("start") == 2 and kinds[-1] == "done"
+    assert any(e["event"] == "stage" and e["stage"] == "resume" for e in log)
+    steps = [e["iteration"] for e in log[kinds.index("start", 1):] if e["event"] == "snapshot"]
+    assert min(steps) >= snap["iteration"] and max(steps) == 60
+    assert json.loads((run / "report.json").read_text())["result"]["iterations"] == 60
+
+
+def test_sigterm_cancels_cleanly(capture, tmp_path):
+    run = tmp_path / "run"
+    proc = start(capture, run, "--iterations", 200)
+    wait_for_geometry_steps(proc, 3)
+    proc.send_signal(signal.SIGTERM)
+    proc.communicate(timeout=120)
+    assert proc.returncode == 130
+    assert events(run)[-1]["event"] == "cancelled"
+    check_snapshot(run)
+
+
+def test_bad_initial_meshes(capture, tmp_path):
+    empty = tmp_path / "empty.obj"
+    empty.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\n")
+    far = tmp_path / "far.ply"
+    far_mesh = icosphere(2, 0.3)
+    far_mesh.vertices += [500.0, 0.0, 0.0]
+    save_mesh(far, far_mesh)
+    for path, words in ((empty, "no faces"), (far, "outside the cameras' common view")):
+        proc = run_cli("reconstruct", capture, "--out", tmp_path / f"run_{path.stem}", "--init", path, *FAST)
+        assert proc.returncode == 2, proc.stderr[-2000:]
+        line = proc.stderr.strip().splitlines()[-1]
+        assert line.startswith("error: ") and words in line and "Traceback" not in proc.stderr
+    proc = run_cli("reconstruct", capture, "--out", tmp_path / "r", *FAST, "--material", "shiny")
+    assert proc.returncode == 2 and "material" in proc.stderr and not (tmp_path / "r").exists()
+
+
+def test_non_manifold_initial_mesh_is_repaired_with_a_warning(capture, tmp_path):
+    sphere = icosphere(3, 0.45)
+    holed = Mesh(sphere.vertices, sphere.faces[5:])  # five faces missing: boundary edges
+    path = tmp_path / "holed.ply"
+    save_mesh(path, holed)
+    run = tmp_path / "run"
+    proc = run_cli("reconstruct", capture, "--out", run, "--init", path, "--iterations", 5, *FAST, timeout=300)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    warnings = [e["message"] for e in events(run) if e["event"] == "warning"]
+    assert any("repaired" in w for w in warnings), warnings
+    assert inspect(load_mesh(run / "result.ply")).closed_manifold
+
+
+def test_existing_run_folder_needs_resume_or_overwrite(capture, tmp_path):
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "something").write_text("x")
+    proc = run_cli("reconstruct", capture, "--out", run, *FAST, "--iterations", 5)
+    assert proc.returncode == 2 and "--resume" in proc.stderr
+    proc = run_cli("reconstruct", capture, "--out", tmp_path / "new", "--resume", *FAST, "--iterations", 5)
+    assert proc.returncode == 2 and "nothing to resume" in proc.stderr
