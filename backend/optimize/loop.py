@@ -245,7 +245,7 @@ class Reconstruction:
                         continue
                     vertices = new_vertices
                 if mgrads:
-                    latents = self._latents()
+                    latents = {n: z for n, z in self._latents().items() if n in mgrads}  # the trainable ones
                     self.material.load_parameters(material_opt.step(latents, mgrads))
                 self.progress.update(stage="geometry", level=self.level, iteration=self.level_iteration,
                                      iterations=c.level_iterations, loss=loss, faces=self.mesh.n_faces)
