@@ -102,6 +102,8 @@ def measure_bounces(renderer, views, masks, cfg: EffectsConfig) -> dict:
     increments = {d: [] for d in range(3, cfg.max_depth_probe + 1)}
     direct_sum = 0.0
     for view, mask in zip(views, masks):
+        if not np.any(mask > 0.5):  # the object is not in this view: nothing to measure
+            continue
         renderer._set_lights(view)
         by_seed = []
         for seed in (11, 12):
