@@ -80,7 +80,7 @@ def test_initial_mesh_enclosing_the_cameras_is_rejected(tmp_path):
     ('empty distribution'): the loop refuses such a start with a one-line input error."""
     result = run("camera_inside_init", tmp_path)
     assert result.passed, result.problems
-    assert "encloses 6 of the 6 cameras" in result.notes["error"]
+    assert "encloses 1 of the 6 cameras" in result.notes["error"]
 
 
 def test_steps_that_would_swallow_a_camera_are_undone_and_counted(tmp_path):
@@ -136,7 +136,7 @@ def test_bench_prints_the_table(tmp_path):
     lines = proc.stdout.strip().splitlines()
     assert lines[0].split()[:5] == ["case", "steps", "caught", "final", "loss"]
     assert lines[2].split()[0] == "camera_inside_init" and " pass " in lines[2]
-    assert lines[-1] == "1/1 passed (peak GB: this process so far)"
+    assert lines[-1] == "1/1 passed (peak GB: this process so far)" and lines[-3].startswith("caught: ")
     saved = json.loads((tmp_path / "results.json").read_text())
     assert saved["quick"] and saved["cases"][0]["passed"]
 
