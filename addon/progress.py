@@ -27,6 +27,7 @@ class RunState:
     snapshots: int = 0  # snapshot events seen
     message: str = ""  # error or cancel message, or the final summary
     warnings: list[str] = field(default_factory=list)
+    effects: str = ""  # the light-transport effects being simulated, from the newest `effects` event
     done: dict = field(default_factory=dict)  # the `done` event
     started: float = field(default_factory=time.monotonic)
     _eta_s: float | None = None
@@ -58,6 +59,8 @@ class RunState:
             self.snapshots += 1
             if event.get("loss") is not None:
                 self.loss = event["loss"]
+        elif kind == "effects":
+            self.effects = effects_summary(event.get("enabled") or {})
         elif kind == "warning":
             self.warnings.append(str(event.get("message", "")))
         elif kind == "error":
@@ -121,6 +124,16 @@ class RunState:
         if self.loss is not None:
             parts.append(f"loss {self.loss:.4g}")
         return "  ".join(parts)
+
+
+def effects_summary(enabled: dict) -> str:
+    """One line for the panel, e.g. 'direct light, specular' or '3 bounces, shadows, diffuse only'."""
+    depth = int(enabled.get("max_depth") or 2)
+    parts = ["direct light" if depth <= 2 else f"{depth - 1} bounces"]
+    if enabled.get("shadows"):
+        parts.append("shadows")
+    parts.append("specular" if enabled.get("specular", True) else "diffuse only")
+    return ", ".join(parts)
 
 
 def format_duration(seconds: float) -> str:

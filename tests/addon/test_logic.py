@@ -252,3 +252,11 @@ def test_check_reports_real_interpreter(tmp_path):
     assert ok.ok and ok.summary.startswith("OK") and "mitsuba" in ok.summary
     missing = interpreter.check(str(tmp_path / "no-python"))
     assert not missing.ok and "interpreter not found" in missing.summary
+
+
+def test_effects_event_is_summarised_for_the_panel():
+    state = progress.RunState()
+    state.update({"event": "effects", "enabled": {"max_depth": 2, "shadows": False, "specular": True}})
+    assert state.effects == "direct light, specular"
+    state.update({"event": "effects", "enabled": {"max_depth": 4, "shadows": True, "specular": False}})
+    assert state.effects == "3 bounces, shadows, diffuse only"
