@@ -43,8 +43,8 @@ class ReconstructConfig:
     min_step_scale: float = 0.125  # a level ends when its step has shrunk this far and plateaued
     level_iterations: int = 400
     min_level_iterations: int = 30
-    max_levels: int = 8
-    level_tolerance: float = 0.01
+    max_levels: int = 12
+    level_tolerance: float = 0.003
     # re-meshing between levels: auto = when ray casting finds back faces or geometry outside
     # the masks on more than remesh_threshold of the hits
     remesh: str = "auto"
@@ -60,5 +60,5 @@ PRESETS = {
     "draft": {"max_size": 96, "coarse_size": 48, "initial_faces": 2000, "max_levels": 3, "level_iterations": 120,
               "validation_views": 4},
     "balanced": {},
-    "final": {"max_size": 256, "initial_faces": 8000, "max_levels": 10, "level_iterations": 600, "views_per_step": 4},
+    "final": {"max_size": 256, "initial_faces": 8000, "max_levels": 16, "level_iterations": 600, "views_per_step": 4},
 }

@@ -196,7 +196,6 @@ class Reconstruction:
         size = level_size(self.level, c.coarse_size, c.max_size)
         views = self.viewset.at(size)
         centres = np.array([v.camera.centre for v in views])
-        self.emit("stage", stage="geometry", level=self.level, faces=self.mesh.n_faces)
         objective = Objective(self.mesh, self.material, views, self._settings(), self.capture.environment,
                               tone=c.tone)
         lr0 = c.step * mean_edge_length(self.mesh)
@@ -207,6 +206,8 @@ class Reconstruction:
         plateau = Plateau(c.plateau_tolerance, c.patience)
         vertices = self.mesh.vertices.copy()
         plateau.update(objective.loss(vertices, val_ids, val_seed, c.validation_spp))
+        self.emit("stage", stage="geometry", level=self.level, faces=self.mesh.n_faces, iteration=self.iteration,
+                  loss=plateau.best, size=size, seconds=round(self.elapsed(), 3))
         best = (vertices.copy(), self._latents())
         first_loss = plateau.best
         rng = np.random.default_rng([c.seed, self.level])
