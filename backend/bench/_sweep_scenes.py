@@ -95,11 +95,16 @@ def corner_mesh(cells: int = 20, thickness: int = 3) -> tuple[Mesh, np.ndarray]:
 
 
 def _corner_directions(n: int, offset: float = 0.0) -> np.ndarray:
-    """About ``n`` view directions on the side of the sphere that looks into the corner."""
+    """``n`` view directions all around (the outside needs silhouettes too), the spiral's
+    +z pole turned onto the corner's open diagonal."""
     from ..synth.layout import fibonacci_sphere
 
-    d = fibonacci_sphere(2 * n, offset)
-    return d[d @ (np.ones(3) / np.sqrt(3)) > -0.05]
+    d = fibonacci_sphere(n, offset)
+    axis = np.ones(3) / np.sqrt(3)  # rotate +z onto the corner's open diagonal
+    v = np.cross([0.0, 0.0, 1.0], axis)
+    vx = np.array([[0, -v[2], v[1]], [v[2], 0, -v[0]], [-v[1], v[0], 0]])
+    rot = np.eye(3) + vx + vx @ vx / (1 + axis[2])
+    return d @ rot.T
 
 
 def _write_views(root: Path, renderer, cameras, lights, names, seed: int):
@@ -116,7 +121,7 @@ def _write_views(root: Path, renderer, cameras, lights, names, seed: int):
     return frames
 
 
-def build_corner(out: Path, emit, views: int = 20, held_out: int = 4, resolution: int = 128, spp: int = 256,
+def build_corner(out: Path, emit, views: int = 24, held_out: int = 4, resolution: int = 128, spp: int = 256,
                  max_depth: int = 8, specular: float = 0.05, roughness: float = 0.5, seed: int = 0) -> None:
     """The corner capture: training views under camera-mounted point lights (the paper's
     layout), held-out views likewise, relit views under the second procedural sky alone.
@@ -175,8 +180,8 @@ SCENES = {s.name: s for s in [
           "24 views at 128 px",
           _synth(mesh="blob", views=24, resolution=128, lighting="env", environment=_studio(), albedo="pattern",
                  specular=0.25, roughness=0.35, spp=256, max_depth=4, held_out=4)),
-    Scene("corner", "a solid three-plane corner (red, blue, white planes), about 20 views at 128 px into the "
-          "corner under camera-mounted point lights, path traced with 8 vertices (colour bleeding)", build_corner),
+    Scene("corner", "a solid three-plane corner (red, blue, white planes), 24 views at 128 px all around "
+          "under camera-mounted point lights, path traced with 8 vertices (colour bleeding inside)", build_corner),
     Scene("tiny", "the blob, 8 views at 32 px, two point lights per camera (smoke test)",
           _synth(mesh="blob", views=8, resolution=32, lighting="points", albedo=[0.6, 0.6, 0.6], spp=16,
                  held_out=2)),
