@@ -38,10 +38,6 @@ from .views import ViewSet, validation_views
 METRIC_SAMPLES_TRACKING = 30_000
 
 
-class BudgetSpent(Exception):
-    """The time budget or the iteration cap ran out."""
-
-
 class Reconstruction:
     def __init__(self, capture: Capture, folder: RunFolder, config: ReconstructConfig, emit,
                  material=None, resume: bool = False):
@@ -286,7 +282,10 @@ class Reconstruction:
         """Material-only steps that open level 0 when the material is estimated: a wrong
         material makes the geometry compensate (a too-dark material inflates the mesh
         toward the lights), so the material gets a head start."""
-        return self.config.material_warmup if self.material.trainable else 0
+        if not self.material.trainable:
+            return 0
+        cap = self.config.iterations  # a capped run keeps most of its steps for geometry
+        return self.config.material_warmup if cap is None else min(self.config.material_warmup, cap // 3)
 
     def _latents(self) -> dict[str, np.ndarray]:
         return {n: np.array(z, np.float64) for n, z in self.material.parameters().items()}
