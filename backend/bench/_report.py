@@ -75,7 +75,8 @@ def plot(rows: list[dict], scene: str, path: Path) -> None:
 
 def _front_table(rows: list[dict]) -> list[str]:
     idx = _pareto.front([r["seconds"] for r in rows], [r["f1"] for r in rows])
-    lines = ["| setting | wall s | CPU s | peak MB | Chamfer-L1 | F1@0.01 | novel PSNR | relit PSNR | load |",
+    lines = ["| setting | wall s | CPU s | peak MB | Chamfer-L1 | F1@0.01 | novel PSNR | relit PSNR "
+             "| load before–after |",
              "|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for i in idx:
         r = rows[i]
@@ -129,11 +130,14 @@ def _knob_lines(rows: list[dict]) -> list[str]:
     if not effects:
         return []
     wall = {e["name"]: e["d_seconds"] for e in _pareto.knob_effects(rows, "draft")}
+    base = next(r["cpu_seconds"] for r in rows if r["name"] == "draft")
     lines = ["| knob | from → to | Δ CPU s | Δ wall s | Δ F1 | F1 points per CPU minute |",
              "|---|---|---:|---:|---:|---:|"]
     for e in effects:
+        per_minute = ("– (time change within 5 %)" if abs(e["d_seconds"]) < 0.05 * base
+                      else _fmt(60 * e["per_second"], 2))
         lines.append(f"| {e['knob']} | {e['from']} → {e['to']} | {e['d_seconds']:+.0f} | {wall[e['name']]:+.0f} | "
-                     f"{e['d_score']:+.1f} | {_fmt(60 * e['per_second'], 2)} |")
+                     f"{e['d_score']:+.1f} | {per_minute} |")
     return lines
 
 

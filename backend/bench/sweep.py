@@ -300,7 +300,8 @@ def add_arguments(parser) -> None:
     parser.add_argument("--repeats", type=int, default=3, help="runs per setting when cheap (default: %(default)s)")
     parser.add_argument("--repeat-under", type=float, default=30.0,
                         help="repeat only settings whose first run took fewer seconds (default: %(default)s)")
-    parser.add_argument("--eval-spp", type=int, default=128, help="samples per pixel of the scored renders (default: %(default)s)")
+    parser.add_argument("--eval-spp", type=int, default=128,
+                        help="samples per pixel of the scored renders (default: %(default)s)")
     parser.add_argument("--rerun", action="store_true", help="run settings already in results.jsonl again")
     parser.add_argument("--report-only", action="store_true", help="only rewrite the report from results.jsonl")
     parser.add_argument("--seed", type=int, default=0)

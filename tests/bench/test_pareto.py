@@ -17,8 +17,8 @@ def brute_front(times, scores):
     n = len(times)
     keep = []
     for i in range(n):
-        dominated = any(times[j] <= times[i] and scores[j] >= scores[i] and (times[j], scores[j]) != (times[i], scores[i])
-                        for j in range(n))
+        dominated = any(times[j] <= times[i] and scores[j] >= scores[i]
+                        and (times[j], scores[j]) != (times[i], scores[i]) for j in range(n))
         if not dominated:
             keep.append(i)
     return keep
