@@ -65,7 +65,7 @@ def test_reconstruction_changes_genus(torus_capture, tmp_path):
     run = tmp_path / "run"
     proc = run_cli("reconstruct", torus_capture, "--out", run, "--init", "sphere", "--max-size", 32,
                    "--coarse-size", 32, "--initial-faces", 600, "--material", "known:0.6,0.6,0.6:0.25:0.35",
-                   "--max-levels", 2, "--level-iterations", 150, "--step", 0.3, timeout=300)
+                   "--max-levels", 2, "--level-iterations", 150, "--step", 0.3, "--effects", "specular", timeout=300)
     assert proc.returncode == 0, proc.stderr[-3000:]
     report = json.loads((run / "report.json").read_text())
     assert report["init"]["genus"] == 0

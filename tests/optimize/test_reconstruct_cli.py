@@ -20,7 +20,7 @@ from backend.synth.procedural import icosphere
 from tests.helpers import REPO, run_cli
 
 FAST = ["--max-size", "40", "--coarse-size", "20", "--initial-faces", "1500", "--spp", "8",
-        "--material", "known:0.6,0.6,0.6:0.25:0.35"]
+        "--material", "known:0.6,0.6,0.6:0.25:0.35", "--effects", "specular"]
 
 
 @pytest.fixture(scope="module")

@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 
 from ...capture.model import Camera
-from ...errors import InputError, require
+from ...errors import require
 from ..mesh import Mesh, load_mesh
 from ..simplify import simplify
 from ..topology import clean, enclosed, inspect, orient_outward, repair
