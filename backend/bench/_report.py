@@ -58,9 +58,9 @@ def plot(rows: list[dict], scene: str, path: Path) -> None:
         ax.step(xs + [max(r[tkey] for r in pts) * 1.15], ys + ys[-1:], where="post", color="tab:red",
                 lw=1.2, label="Pareto front")
         ax.set_xscale("log")
-        fmt = matplotlib.ticker.FuncFormatter(lambda x, _: f"{x:g}")
-        ax.xaxis.set_major_formatter(fmt)
-        ax.xaxis.set_minor_formatter(fmt)
+        ax.xaxis.set_major_formatter(matplotlib.ticker.FuncFormatter(lambda x, _: f"{x:g}"))
+        ax.xaxis.set_minor_formatter(matplotlib.ticker.FuncFormatter(  # label 2x and 5x only
+            lambda x, _: f"{x:g}" if f"{x:e}"[0] in "25" else ""))
         ax.tick_params(axis="x", which="minor", labelsize=7)
         ax.set_xlabel(xlabel)
         ax.set_ylabel(ylabel)
@@ -173,8 +173,29 @@ def _presets_lines(presets: dict) -> list[str]:
     return lines
 
 
-def write(rows: list[dict], out: Path, scenes: dict, presets_path: Path | None = None) -> Path:
-    """Write the report for ``rows`` into ``out``; returns the path of ``report.md``."""
+def _repeat_lines(history: list[dict]) -> list[str]:
+    """Settings measured more than once (``--rerun``): every measurement, oldest first."""
+    seen: dict[tuple, list[dict]] = {}
+    for r in history:
+        if r.get("rc") == 0 and r.get("f1") is not None:
+            seen.setdefault((r["scene"], r["name"]), []).append(r)
+    repeated = {k: v for k, v in seen.items() if len(v) > 1}
+    if not repeated:
+        return []
+    lines = ["| scene | setting | measurements (wall s / CPU s / load before / F1@0.01), oldest first |",
+             "|---|---|---|"]
+    for (scene, name), rs in repeated.items():
+        runs = "; ".join(f"{r['seconds']:.0f} / {r['cpu_seconds']:.0f} / {_fmt(r.get('load_before'))} / {r['f1']:.1f}"
+                         for r in rs)
+        lines.append(f"| {scene} | {name} | {runs} |")
+    return lines
+
+
+def write(rows: list[dict], out: Path, scenes: dict, presets_path: Path | None = None,
+          history: list[dict] | None = None) -> Path:
+    """Write the report for ``rows`` (the latest measurement of each setting) into ``out``;
+    ``history`` (every measurement) adds a table of the settings measured more than once.
+    Returns the path of ``report.md``."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     fsio.write_json(out / "results.json", rows)
@@ -228,6 +249,11 @@ def write(rows: list[dict], out: Path, scenes: dict, presets_path: Path | None =
         if steps:
             md += ["Along the front: what the next budget buys:", ""] + steps + [""]
         md += ["<details><summary>All runs</summary>", ""] + _all_table(srows) + ["", "</details>", ""]
+    repeats = _repeat_lines(history or [])
+    if repeats:
+        md += ["## Repeated measurements", "",
+               "Settings run more than once; the sections above use the latest run. The spread shows the "
+               "load's effect on wall time and the run-to-run variation of the result.", ""] + repeats + [""]
     presets_path = presets_path or Path(__file__).resolve().parents[1] / "presets.json"
     if presets_path.is_file():
         try:

@@ -265,15 +265,18 @@ def measure(scene: str, capture_dir: Path, setting: Setting, out: Path, repeats:
 
 
 # -- results file ---------------------------------------------------------------------------------
+def load_history(path: Path) -> list[dict]:
+    """Every row of a results file (JSON lines), in the order measured."""
+    if not Path(path).is_file():
+        return []
+    return [json.loads(line) for line in Path(path).read_text().splitlines() if line.strip()]
+
+
 def load_results(path: Path) -> list[dict]:
-    """Rows of a results file (JSON lines); a later row replaces an earlier one of the same
-    scene and setting name."""
+    """Rows of a results file; a later row replaces an earlier one of the same scene and setting."""
     rows: dict[tuple, dict] = {}
-    if Path(path).is_file():
-        for line in Path(path).read_text().splitlines():
-            if line.strip():
-                row = json.loads(line)
-                rows[(row["scene"], row["name"])] = row
+    for row in load_history(path):
+        rows[(row["scene"], row["name"])] = row
     return list(rows.values())
 
 
@@ -345,6 +348,6 @@ def run(args) -> int:
             emit("progress", stage="sweep", iteration=i + 1, iterations=len(todo), fraction=(i + 1) / len(todo),
                  scene=scene, setting=setting.name, seconds=row["seconds"], f1=row.get("f1"), rc=row["rc"])
     rows = load_results(results)
-    written = _report.write(rows, args.report, SCENES)
+    written = _report.write(rows, args.report, SCENES, history=load_history(results))
     emit("done", report=str(written), results=str(results), runs=len(rows))
     return 0
