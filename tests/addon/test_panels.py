@@ -4,12 +4,15 @@ drawn in background mode)."""
 
 from __future__ import annotations
 
+import json
 import sys
 import time
 import types
 
 import bpy
 import pytest
+
+from tests.helpers import REPO
 
 from .conftest import SCRIPTED_BACKEND
 
@@ -45,6 +48,15 @@ class RecordingLayout:
         self.log.append(("progress", round(factor, 3), text))
 
 
+def expected_cost(preset: str) -> str:
+    """What the panel should say for a preset, read straight from the shipped calibration file."""
+    calibration = json.loads((REPO / "backend" / "presets.json").read_text())
+    entry, machine = calibration["presets"].get(preset), calibration["machine"]
+    if entry is None:
+        return "not calibrated"
+    return f"~{entry['expected_minutes']:.3g} min, F1 {entry['expected_f1']:.2f} on {machine}"
+
+
 def draw(panel_name: str, context) -> list:
     log = []
     getattr(bpy.types, panel_name).draw(types.SimpleNamespace(layout=RecordingLayout(log)), context)
@@ -58,7 +70,8 @@ def test_panels_draw_in_an_empty_scene(context):
     assert ("operator", "sft.solve_cameras", True) in log["SFT_PT_cameras"]
     assert ("operator", "sft.reconstruct", True) in log["SFT_PT_reconstruct"]
     labels = [entry[1] for entry in log["SFT_PT_reconstruct"] if entry[0] == "label"]
-    assert labels == ["Draft: not calibrated", "Balanced: not calibrated", "Final: not calibrated"]
+    assert labels == [f"{title}: {expected_cost(key)}" for key, title in
+                      (("draft", "Draft"), ("balanced", "Balanced"), ("final", "Final"))]
     assert ("operator", "sft.relit_preview", True) in log["SFT_PT_preview"]
 
 
