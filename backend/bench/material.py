@@ -29,7 +29,7 @@ DRAGON = REPO.parent / "shared" / "data" / "meshes" / "shapefromtracing" / "drag
 class MaterialBench:
     mesh: str = str(DRAGON)
     up: str = "y"
-    views: int = 16
+    views: int = 32  # x 2 point lights each (the paper's layout)
     held_out: int = 4
     resolution: int = 128
     truth_spp: int = 256
@@ -62,9 +62,16 @@ def add_arguments(parser) -> None:
                             help=HELP.get(f.name, f.name.replace("_", " ")) + " (default: %(default)s)")
     parser.add_argument("--out", type=Path, default=REPO / "runs" / "bench-material")
     parser.add_argument("--variant", help="Mitsuba variant (default: automatic)")
+    from . import _material_table
+
+    _material_table.add_arguments(parser)
 
 
 def run(args) -> int:
+    if args.table:
+        from . import _material_table
+
+        return _material_table.run(args)
     emit = Emitter()
     variant.choose(args.variant, emit)
     spec = MaterialBench(**{f.name: getattr(args, f.name) for f in fields(MaterialBench)})
