@@ -1,6 +1,6 @@
 """The capture: frames, masks, cameras and lighting of one object, and its on-disk format."""
 
-from .model import Camera, Capture, Environment, Frame, PointLight
+from .model import Camera, CameraResponse, Capture, Environment, Frame, PointLight
 from .format import load_capture, save_capture
 
-__all__ = ["Camera", "Capture", "Environment", "Frame", "PointLight", "load_capture", "save_capture"]
+__all__ = ["Camera", "CameraResponse", "Capture", "Environment", "Frame", "PointLight", "load_capture", "save_capture"]

@@ -13,7 +13,7 @@ import numpy as np
 
 from .. import fsio
 from ..errors import InputError, require
-from .model import Camera, Capture, Environment, Frame, PointLight
+from .model import Camera, CameraResponse, Capture, Environment, Frame, PointLight
 
 FORMAT = "shape-from-tracing-capture"
 VERSION = 1
@@ -83,10 +83,31 @@ def parse_environment(d: dict | None, root: Path, path: Path) -> Environment | N
     if not d:
         return None
     env = Environment(root / d["path"], float(d.get("strength", 1.0)),
-                      float(d.get("rotation_z_deg", 0.0)))
+                      float(d.get("rotation_z_deg", 0.0)), str(d.get("provenance", "given")))
     require(math.isfinite(env.strength) and env.strength >= 0, path,
             "environment strength must be a finite number >= 0", "fix 'strength'")
+    require(math.isfinite(env.rotation_z_deg), path, "environment rotation_z_deg is not finite",
+            "give the rotation in degrees")
     return env
+
+
+def parse_camera_response(d: dict | None, path: Path) -> CameraResponse:
+    if not d:
+        return CameraResponse()
+    try:
+        response = CameraResponse(float(d.get("exposure", 1.0)),
+                                  tuple(float(x) for x in d.get("white_balance", (1.0, 1.0, 1.0))),
+                                  str(d.get("curve", "srgb")), str(d.get("provenance", "given")))
+    except (TypeError, ValueError) as err:
+        raise InputError(path, "camera_response holds a value that is not a number",
+                         "give exposure as a number and white_balance as 3 numbers") from err
+    values = [response.exposure, *response.white_balance]
+    require(len(response.white_balance) == 3 and all(math.isfinite(v) and v > 0 for v in values), path,
+            "camera_response exposure and the 3 white_balance gains must be finite and > 0",
+            "fix 'camera_response'")
+    require(response.curve == "srgb", path, f"camera_response curve '{response.curve}' is not supported",
+            "use 'srgb' (8-bit frames) and store linear frames as EXR")
+    return response
 
 
 def _load_native(folder: Path) -> Capture:
@@ -114,7 +135,8 @@ def _load_native(folder: Path) -> Capture:
                    environment=parse_environment(doc.get("environment"), folder, path),
                    points=folder / doc["points"] if doc.get("points") else None,
                    provenance=doc.get("provenance", {}),
-                   ground_truth=doc.get("ground_truth", {}))
+                   ground_truth=doc.get("ground_truth", {}),
+                   camera_response=parse_camera_response(doc.get("camera_response"), path))
 
 
 def capture_to_json(capture: Capture) -> dict:
@@ -123,6 +145,8 @@ def capture_to_json(capture: Capture) -> dict:
            "frames": [f.to_json(root) for f in capture.frames]}
     if capture.environment:
         doc["environment"] = capture.environment.to_json(root)
+    if capture.camera_response != CameraResponse():
+        doc["camera_response"] = capture.camera_response.to_json()
     if capture.points:
         doc["points"] = Path(capture.points).relative_to(root).as_posix()
     if capture.provenance:

@@ -89,10 +89,42 @@ class Environment:
     path: Path
     strength: float = 1.0
     rotation_z_deg: float = 0.0
+    provenance: str = "given"  # or "estimated" (lighting alignment, backend.lighting)
 
     def to_json(self, root: Path) -> dict:
-        return {"path": _rel(self.path, root), "strength": self.strength,
-                "rotation_z_deg": self.rotation_z_deg}
+        out = {"path": _rel(self.path, root), "strength": self.strength, "rotation_z_deg": self.rotation_z_deg}
+        if self.provenance != "given":
+            out["provenance"] = self.provenance
+        return out
+
+
+@dataclass
+class CameraResponse:
+    """How the camera turned scene radiance into the frames' pixel values.
+
+    A frame pixel is curve(exposure x white_balance x radiance): ``curve`` "srgb" is the
+    sRGB transfer curve of 8- and 16-bit frames (EXR/HDR frames are linear and skip it);
+    one exposure and three white-balance gains per video. ``radiance`` inverts the gains
+    for frames already linearised on load."""
+
+    exposure: float = 1.0
+    white_balance: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    curve: str = "srgb"
+    provenance: str = "default"  # "given", "estimated" or "default" (identity)
+
+    @property
+    def gains(self) -> np.ndarray:
+        return self.exposure * np.asarray(self.white_balance, np.float32)
+
+    def radiance(self, linear: np.ndarray) -> np.ndarray:
+        """Scene radiance from a linearised frame (H, W, 3)."""
+        if self.exposure == 1.0 and tuple(self.white_balance) == (1.0, 1.0, 1.0):
+            return linear
+        return (np.asarray(linear, np.float32) / self.gains).astype(np.float32)
+
+    def to_json(self) -> dict:
+        return {"curve": self.curve, "exposure": self.exposure,
+                "white_balance": [float(x) for x in self.white_balance], "provenance": self.provenance}
 
 
 @dataclass
@@ -123,6 +155,7 @@ class Capture:
     points: Path | None = None  # sparse SfM points (PLY), for initialisation
     provenance: dict = field(default_factory=dict)
     ground_truth: dict = field(default_factory=dict)  # paths relative to root, e.g. {"mesh": ...}
+    camera_response: CameraResponse = field(default_factory=CameraResponse)
 
     @property
     def has_masks(self) -> bool:

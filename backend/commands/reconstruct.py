@@ -2,12 +2,14 @@
 
 Writes the run folder of docs/protocol.md: events.jsonl, snapshot.json + snapshots/,
 state/ (for --resume), result.ply and report.json. Exit codes: 0 done, 1 internal error,
-2 bad input, 130 cancelled (SIGTERM, SIGINT or RUN/STOP)."""
+2 bad input, 130 cancelled (SIGTERM, SIGINT or RUN/STOP). ``reconstruct VIDEO --masks MASKS --env HDR``
+first writes RUN/capture as ``capture-from-video`` does (reused by --resume)."""
 
 from __future__ import annotations
 
 import os
 from pathlib import Path
+from types import SimpleNamespace
 
 from .. import variant
 from ..errors import InputError, require
@@ -20,7 +22,13 @@ INIT_HELP = "carve (visual hull; default with masks), sphere, box, spheres (sphe
 def add_arguments(parser):
     d = ReconstructConfig()
     parser.add_argument("capture", metavar="PATH", type=Path,
-                        help="capture folder (or any importable layout: transforms.json, COLMAP, IDR, Middlebury)")
+                        help="capture folder (or any importable layout: transforms.json, COLMAP, IDR, Middlebury), "
+                             "or a video (or folder of frames) with --masks and --env")
+    parser.add_argument("--masks", metavar="MASKS", help="with a video: its object masks (folder of images or a video)")
+    parser.add_argument("--env", metavar="HDR", help="with a video: the equirectangular HDR map of the lighting")
+    from .capture_from_video import add_lighting_arguments
+
+    add_lighting_arguments(parser)
     parser.add_argument("--out", required=True, type=Path, metavar="RUN", help="run folder")
     parser.add_argument("--preset", choices=sorted(PRESETS), default="balanced",
                         help="quality preset (default %(default)s); the options below override it")
@@ -75,6 +83,29 @@ def config_from_args(args) -> ReconstructConfig:
     return config
 
 
+def video_inputs(args):
+    """The checked inputs of ``capture-from-video`` when PATH is a video with --masks and --env, else None."""
+    if args.masks is None and args.env is None:
+        return None
+    require(args.masks is not None and args.env is not None, args.capture,
+            "a video needs both --masks and --env", "give --masks MASKS and --env HDR, or a capture folder")
+    from .capture_from_video import check_inputs
+
+    return check_inputs(SimpleNamespace(capture=args.capture, masks=args.masks, env=args.env,
+                                        env_rotation=args.env_rotation, align_lighting=args.align_lighting))
+
+
+def video_capture(inputs, folder, resume: bool, emit):
+    """RUN/capture written from the video inputs (kept when resuming), loaded."""
+    from ..capture.format import FILENAME, load_capture
+    from .capture_from_video import write_capture
+
+    path = folder.path / "capture"
+    if not (resume and (path / FILENAME).is_file()):
+        write_capture(inputs, path, emit, overwrite=True)
+    return load_capture(path)
+
+
 def run(args) -> int:
     import dataclasses
 
@@ -84,16 +115,21 @@ def run(args) -> int:
 
     config = config_from_args(args)
     parse_spec(config.material)  # bad input is reported before anything is written
-    capture = load_capture(args.capture)
+    video = video_inputs(args)
+    capture = load_capture(args.capture) if video is None else None
     chosen = variant.choose(args.variant)
     from ..optimize.appearance import Appearance
 
-    Appearance.check(capture, config)
+    if capture is not None:
+        Appearance.check(capture, config)
     folder = RunFolder.create(args.out, resume=args.resume, overwrite=args.overwrite)
     emit = Emitter(log_path=folder.events)
     try:
         emit("start", run=str(folder.path), capture=str(args.capture), settings=dataclasses.asdict(config))
         emit("variant", variant=chosen, llvm=os.environ.get("DRJIT_LIBLLVM_PATH"))
+        if video is not None:
+            capture = video_capture(video, folder, args.resume, emit)
+            Appearance.check(capture, config)
         from ..optimize.loop import Reconstruction
 
         material = None if args.resume else ConstantMaterial.from_spec(config.material)

@@ -58,7 +58,7 @@ class ViewSet:
         self.views: list[View] = []
         self.premultiplied = 0
         for frame in capture.frames:
-            image = read_linear_rgb(frame.image)
+            image = capture.camera_response.radiance(read_linear_rgb(frame.image))
             mask = read_mask(frame.mask) if frame.mask else None
             for path, pixels in ((frame.image, image), (frame.mask, mask)):
                 require(pixels is None or bool(np.all(np.isfinite(pixels))), path, "contains NaN or Inf pixels",

@@ -51,6 +51,26 @@ def test_mask_count_mismatch_is_rejected_before_any_work(tmp_path, env):
     assert not out.exists()
 
 
+@pytest.mark.parametrize("masks_count, size, expected", [(11, (96, 64), "11 masks for 12 frames"),
+                                                       (12, (64, 48), "masks are 64x48 but the frames are 96x64")])
+def test_reconstruct_from_video_rejects_mismatched_masks(tmp_path, env, masks_count, size, expected):
+    video = write_video(tmp_path / "orbit.mp4", moving_frames(12, 96, 64))
+    masks = _disc_masks(tmp_path / "masks", masks_count, *size)
+    run = tmp_path / "run"
+    proc = run_cli("reconstruct", video, "--masks", masks, "--env", env, "--out", run)
+    assert proc.returncode == 2, proc.stderr[-2000:]
+    assert proc.stderr.strip().count("\n") == 0 and "Traceback" not in proc.stderr
+    assert expected in proc.stderr and str(masks) in proc.stderr and "Fix:" in proc.stderr
+    assert proc.stdout == "" and not run.exists()
+
+
+def test_reconstruct_video_needs_masks_and_env(tmp_path, env):
+    video = write_video(tmp_path / "orbit.mp4", moving_frames(4, 96, 64))
+    proc = run_cli("reconstruct", video, "--env", env, "--out", tmp_path / "run")
+    assert proc.returncode == 2 and "needs both --masks and --env" in proc.stderr
+    assert not (tmp_path / "run").exists()
+
+
 def test_textureless_video_fails_with_the_registered_count(tmp_path, env):
     flat = [np.full((120, 160, 3), 128, np.uint8) for _ in range(8)]
     video = write_video(tmp_path / "flat.mp4", flat)
@@ -135,5 +155,14 @@ def test_dino_poses_match_the_calibration(dino_capture):
           f"1 unit = {s / np.linalg.norm(box_size):.2f} box diagonals ({doc['provenance']['scene_frame']['size']})")
     assert np.linalg.norm(t - box_centre) < 0.25 * box_size.max()
     assert 0.5 < s / np.linalg.norm(box_size) < 1.2
-    assert doc["provenance"]["lighting"]["aligned"] is False
-    assert doc["environment"]["rotation_z_deg"] == 0 and doc["environment"]["strength"] == 1
+    # Lighting: aligned against the hull (a uniform test map leaves the rotation undetermined,
+    # so only the bookkeeping is checked here; tests/lighting checks the estimate itself).
+    lighting = doc["provenance"]["lighting"]
+    assert lighting["aligned"] is True and lighting["rotation_given"] is False
+    assert len(lighting["coarse_curve"]) == 180 and lighting["refine_curve"] and lighting["pixels"] >= 50
+    assert doc["environment"]["provenance"] == "estimated"
+    assert doc["environment"]["strength"] == pytest.approx(lighting["strength"]) and lighting["strength"] > 0
+    assert doc["camera_response"] == {"curve": "srgb", "exposure": 1.0, "white_balance": [1.0, 1.0, 1.0],
+                                      "provenance": "normalised"}
+    assert any(e["event"] == "stage" and e["stage"] == "lighting" for e in events)
+    assert next(e for e in events if e["event"] == "done")["lighting"]["aligned"] is True

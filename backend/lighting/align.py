@@ -1,0 +1,240 @@
+"""Lighting alignment: the environment map's rotation about Z and its strength, from the frames.
+
+The coarse mesh (the masks' visual hull) is rendered with a constant diffuse albedo of 0.5
+under the map (direct light, :mod:`.transport`) at a few views and a small size, and compared
+with the linearised frames on pixels well inside the masks that are not clipped. Per colour
+channel the gain that best scales the render onto the frame is solved in closed form at
+every rotation, so the object's brightness and colour do not bias the rotation. A coarse
+search over all rotations is followed by a gradient refinement: a rotation by θ shifts the
+map's columns by θ·W/360 texels (periodic linear interpolation), whose derivative is exact,
+and the gains drop out of the derivative because they are optimal (d loss/d gain = 0).
+
+Only the product exposure × white balance × strength × albedo is observable. With the
+camera response's exposure 1 and white balance (1, 1, 1) (docs/capture-format.md) the
+strength is the mean of the three gains, i.e. the strength at which the object's mean
+albedo is 0.5 (the material stages' start), and the gains' ratios are its colour."""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..capture.images import read_mask, read_rgba, srgb_to_linear
+from ..capture.model import Camera, Capture
+from ..errors import require
+from ..geometry.mesh import Mesh
+from .transport import Tracer, pixel_rays, transport_matrix
+
+CLIPPED = 254.0 / 255.0  # encoded 8-bit values at or above this are clipped
+INTERIOR = 0.999  # share of a small pixel's source pixels that must be inside the mask and unclipped
+
+
+@dataclass
+class AlignConfig:
+    views: int = 8  # frames used, evenly spread
+    size: int = 48  # long side of the small frames, pixels
+    env_width: int = 64  # columns of the reduced map (rows: half)
+    coarse_step_deg: float = 2.0
+    trim: float = 0.2  # share of pixels most brighter than the diffuse fit (highlights) dropped after the search
+    iterations: int = 40  # most refinement steps
+    tolerance_deg: float = 0.01  # refinement stops when a step is smaller
+    seed: int = 0
+
+
+@dataclass
+class LightingEstimate:
+    rotation_z_deg: float
+    strength: float
+    gains: list[float]  # frame ≈ gain × render (albedo 0.5, strength 1), per channel
+    loss: float  # relative squared residual at the estimate
+    coarse: list[tuple[float, float]] = field(default_factory=list)  # (degrees, loss) of the search
+    refine: list[tuple[float, float]] = field(default_factory=list)  # (degrees, loss) of accepted steps
+    views: list[str] = field(default_factory=list)
+    pixels: int = 0
+    seconds: float = 0.0
+
+    def provenance(self) -> dict:
+        return {"aligned": True, "rotation_z_deg": self.rotation_z_deg, "strength": self.strength,
+                "gains": self.gains, "loss": self.loss, "views": self.views, "pixels": self.pixels,
+                "seconds": round(self.seconds, 2),
+                "coarse_curve": [[round(a, 3), float(f"{b:.6g}")] for a, b in self.coarse],
+                "refine_curve": [[round(a, 4), float(f"{b:.6g}")] for a, b in self.refine],
+                "normalisation": "exposure 1, white balance 1, mean albedo 0.5"}
+
+
+def _box(array: np.ndarray, width: int, height: int) -> np.ndarray:
+    from PIL import Image
+
+    if array.shape[:2] == (height, width):
+        return array.astype(np.float32)
+    chans = array[..., None] if array.ndim == 2 else array
+    out = np.stack([np.asarray(Image.fromarray(np.ascontiguousarray(chans[..., c], np.float32), "F")
+                               .resize((width, height), Image.BOX)) for c in range(chans.shape[-1])], -1)
+    return out[..., 0] if array.ndim == 2 else out
+
+
+def reduce_environment(pixels: np.ndarray, width: int) -> np.ndarray:
+    """The map box-filtered to ``width`` x ``width / 2`` (kept when it is smaller)."""
+    if pixels.shape[1] <= width:
+        return np.asarray(pixels[..., :3], np.float32)
+    return _box(np.asarray(pixels[..., :3], np.float32), width, width // 2)
+
+
+def frame_samples(capture: Capture, config: AlignConfig) -> list[tuple[str, Camera, np.ndarray, np.ndarray]]:
+    """(name, small camera, linear frame, usable pixels) of evenly spread frames."""
+    frames = capture.frames
+    picks = sorted({int(i) for i in np.linspace(0, len(frames), config.views, endpoint=False)})
+    out = []
+    for i in picks:
+        frame = frames[i]
+        pixels, linear = read_rgba(frame.image)
+        rgb = pixels[..., :3]
+        usable = read_mask(frame.mask) > 0.5 if frame.mask is not None else np.ones(rgb.shape[:2], bool)
+        if not linear:
+            usable &= rgb.max(-1) < CLIPPED
+            rgb = srgb_to_linear(rgb)
+        cam = frame.camera
+        f = min(1.0, config.size / max(cam.width, cam.height))
+        small = cam.scaled(f)
+        out.append((frame.name, small, _box(rgb, small.width, small.height),
+                    _box(usable.astype(np.float32), small.width, small.height) >= INTERIOR))
+    return out
+
+
+def shift_columns(env: np.ndarray, degrees: float) -> tuple[np.ndarray, np.ndarray]:
+    """The map as seen at rotation ``degrees`` and its derivative per degree: column j takes
+    the (periodic, linearly interpolated) value at j − s, s = degrees·W/360."""
+    w = env.shape[1]
+    s = degrees * w / 360.0
+    k = int(np.floor(s))
+    f = s - k
+    a = np.roll(env, k, axis=1)  # a[:, j] = env[:, j - k]
+    b = np.roll(env, k + 1, axis=1)  # env[:, j - k - 1]
+    return (1 - f) * a + f * b, (b - a) * (w / 360.0)
+
+
+class RotationLoss:
+    """Relative squared residual between frames and gain-scaled renders, as a function of the
+    rotation, with its exact derivative."""
+
+    def __init__(self, matrix: np.ndarray, env: np.ndarray, targets: np.ndarray):
+        self.matrix = matrix  # (N, texels)
+        self.env = env  # (H, W, 3) reduced map
+        self.targets = targets.astype(np.float64)  # (N, 3)
+        self.norm = float((self.targets ** 2).sum())
+
+    def subset(self, keep: np.ndarray) -> "RotationLoss":
+        return RotationLoss(self.matrix[keep], self.env, self.targets[keep])
+
+    def brighter(self, degrees: float) -> np.ndarray:
+        """How much brighter each pixel is than the fit, relative to the fit (N,)."""
+        renders = (self.matrix @ shift_columns(self.env, degrees)[0].reshape(-1, 3).astype(np.float32)).astype(np.float64)
+        fit = (self.gains(renders) * renders).sum(1)
+        return (self.targets.sum(1) - fit) / np.maximum(fit, 1e-6 * max(fit.max(), 1e-30))
+
+    def gains(self, renders: np.ndarray) -> np.ndarray:
+        return (renders * self.targets).sum(0) / np.maximum((renders ** 2).sum(0), 1e-30)
+
+    def __call__(self, degrees: float, gradient: bool = True) -> tuple[float, float, np.ndarray]:
+        """(loss, d loss / d degree, per-channel gains)."""
+        env, d_env = shift_columns(self.env, degrees)
+        renders = self.matrix @ env.reshape(-1, 3).astype(np.float32)
+        renders = renders.astype(np.float64)
+        g = self.gains(renders)
+        residual = self.targets - g * renders
+        loss = float((residual ** 2).sum()) / self.norm
+        if not gradient:
+            return loss, 0.0, g
+        back = self.matrix.T @ residual.astype(np.float32)  # (texels, 3)
+        grad = -2.0 * float((g * back * d_env.reshape(-1, 3)).sum()) / self.norm
+        return loss, grad, g
+
+
+def refine(loss: RotationLoss, start: float, step: float, config: AlignConfig,
+           progress=lambda i, deg, value: None) -> tuple[float, list[tuple[float, float]]]:
+    """Gradient descent on the rotation: secant (Newton on the derivative) steps where the
+    loss curves upwards, else steps along the negative gradient, each at most ``step``
+    degrees and halved until the loss decreases."""
+    theta = start
+    value, grad, _ = loss(theta)
+    curve = [(theta, value)]
+    prev = None
+    for i in range(config.iterations):
+        if grad == 0:
+            break
+        move = -np.sign(grad) * step
+        if prev is not None and theta != prev[0]:
+            curvature = (grad - prev[1]) / (theta - prev[0])
+            if curvature > 0:
+                move = float(np.clip(-grad / curvature, -step, step))
+        while abs(move) >= config.tolerance_deg:
+            trial_value, trial_grad, _ = loss(theta + move)
+            if trial_value < value:
+                break
+            move *= 0.5
+        if abs(move) < config.tolerance_deg:
+            break
+        prev = (theta, grad)
+        theta, value, grad = theta + move, trial_value, trial_grad
+        curve.append((theta, value))
+        progress(i + 1, theta, value)
+    return theta, curve
+
+
+def align_lighting(capture: Capture, mesh: Mesh, env_pixels: np.ndarray, config: AlignConfig | None = None,
+                   rotation_z_deg: float | None = None, emit=lambda kind, **fields: None) -> LightingEstimate:
+    """Estimate the environment's rotation (unless given) and strength from the frames.
+
+    ``mesh`` is the coarse object (the visual hull); ``env_pixels`` the full map. Needs a
+    Mitsuba variant chosen (``backend.variant.choose()``)."""
+    config = config or AlignConfig()
+    start = time.time()
+    tracer = Tracer(mesh)
+    samples = frame_samples(capture, config)
+    points, normals, targets = [], [], []
+    for name, camera, rgb, usable in samples:
+        ys, xs = np.nonzero(usable)
+        origins, dirs = pixel_rays(camera, np.c_[xs, ys].astype(np.float64))
+        hit, p, n = tracer.first_hits(origins, dirs)
+        points.append(p[hit])
+        normals.append(n[hit])
+        targets.append(rgb[ys[hit], xs[hit]])
+    points, normals, targets = np.concatenate(points), np.concatenate(normals), np.concatenate(targets)
+    require(len(points) >= 50 and float(np.abs(targets).sum()) > 0, capture.root,
+            f"only {len(points)} usable object pixels (inside the masks, unclipped, on the hull) to align the "
+            "lighting with", "check the masks, or pass --no-align-lighting")
+    env = reduce_environment(env_pixels, config.env_width)
+    emit("progress", stage="lighting:transport", pixels=len(points), texels=env.shape[0] * env.shape[1])
+    matrix = transport_matrix(tracer, points, normals, env.shape[1], env.shape[0], config.seed)
+    loss = RotationLoss(matrix, env, targets)
+
+    coarse = []
+    if rotation_z_deg is None:
+        grid = np.arange(0.0, 360.0, config.coarse_step_deg)
+        for k, deg in enumerate(grid):
+            coarse.append((float(deg), loss(float(deg), gradient=False)[0]))
+            if (k + 1) % 30 == 0 or k + 1 == len(grid):
+                emit("progress", stage="lighting:search", iteration=k + 1, iterations=len(grid),
+                     fraction=(k + 1) / len(grid))
+        best = min(coarse, key=lambda c: c[1])[0]
+        if config.trim > 0:  # drop highlights, then search again near the best rotation
+            excess = loss.brighter(best)
+            loss = loss.subset(excess <= np.quantile(excess, 1.0 - config.trim))
+            near = best + np.arange(-10, 11) * config.coarse_step_deg
+            best = float(min(near, key=lambda deg: loss(float(deg), gradient=False)[0]))
+
+        def progress(i, deg, value):
+            emit("progress", stage="lighting:refine", iteration=i, iterations=config.iterations,
+                 rotation_z_deg=round(deg % 360.0, 3), loss=value)
+
+        theta, curve = refine(loss, best, config.coarse_step_deg, config, progress)
+    else:
+        theta = float(rotation_z_deg)
+        curve = [(theta, loss(theta, gradient=False)[0])]
+    value, _, gains = loss(theta, gradient=False)
+    return LightingEstimate(rotation_z_deg=float(theta % 360.0), strength=float(np.mean(gains)),
+                            gains=[float(g) for g in gains], loss=value, coarse=coarse,
+                            refine=[(d % 360.0, v) for d, v in curve], views=[s[0] for s in samples],
+                            pixels=len(points), seconds=time.time() - start)

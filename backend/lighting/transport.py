@@ -1,0 +1,101 @@
+"""Direct light on a constant diffuse surface as a linear map of the environment's pixels.
+
+A pixel whose camera ray first hits the surface at x (normal n) receives, from an
+equirectangular map E with texels t of solid angle Ω_t,
+
+    L = (albedo / π) Σ_t E_t Ω_t V(x, ω_t) max(0, n·ω_t)
+
+(one direction ω_t per texel and pixel, jittered inside the texel; V = 1 when the ray
+from x towards ω_t escapes the mesh). So a render is ``matrix @ E`` with a fixed matrix:
+a change of E (a rotation is a shift of its columns) is exact and costs one product,
+and the result is a smooth function of E with no Monte Carlo noise between evaluations.
+Directions follow the capture format's environment lookup at rotation 0: texel column u,
+row v look along (sin θ cos φ, sin θ sin φ, cos θ), φ = π(1 − 2u), θ = πv."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..capture.model import CV_TO_GL, Camera
+from ..geometry.mesh import Mesh
+
+ALBEDO = 0.5
+ROWS_PER_CHUNK = 512  # pixels whose shadow rays are traced together
+
+
+def texel_solid_angles(width: int, height: int) -> np.ndarray:
+    """Solid angle of each texel row (all texels of a row are equal), (height,)."""
+    edges = np.cos(np.pi * np.arange(height + 1) / height)
+    return (2 * np.pi / width) * (edges[:-1] - edges[1:])
+
+
+def directions(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """World directions of equirectangular coordinates (u, v) in [0, 1] at rotation 0."""
+    phi, theta = np.pi * (1.0 - 2.0 * u), np.pi * v
+    s = np.sin(theta)
+    return np.stack([s * np.cos(phi), s * np.sin(phi), np.cos(theta)], -1)
+
+
+def pixel_rays(camera: Camera, pixels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """World origins and unit directions of rays through pixel centres ``pixels`` (N, 2) = (x, y)."""
+    d_cv = np.c_[(pixels[:, 0] + 0.5 - camera.cx) / camera.fx, (pixels[:, 1] + 0.5 - camera.cy) / camera.fy,
+                 np.ones(len(pixels))]
+    d = d_cv @ (camera.camera_to_world[:3, :3] @ CV_TO_GL[:3, :3]).T
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    return np.broadcast_to(camera.centre, d.shape).copy(), d
+
+
+class Tracer:
+    """Ray casts against one mesh (Mitsuba; choose the variant first)."""
+
+    def __init__(self, mesh: Mesh):
+        import mitsuba as mi
+
+        from ..render.scene import mitsuba_mesh
+
+        self.mi = mi
+        shape = mitsuba_mesh(mesh, mi.load_dict({"type": "diffuse"}))
+        self.scene = mi.load_dict({"type": "scene", "object": shape})
+        lo, hi = mesh.bounds()
+        self.epsilon = 1e-4 * float(np.linalg.norm(hi - lo))
+
+    def _rays(self, origins: np.ndarray, dirs: np.ndarray):
+        mi = self.mi
+        o, d = np.asarray(origins, np.float32), np.asarray(dirs, np.float32)
+        return mi.Ray3f(mi.Point3f(o[:, 0], o[:, 1], o[:, 2]), mi.Vector3f(d[:, 0], d[:, 1], d[:, 2]))
+
+    def first_hits(self, origins: np.ndarray, dirs: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(hit, points, normals facing the ray's origin) of camera rays."""
+        si = self.scene.ray_intersect(self._rays(origins, dirs))
+        hit = np.array(si.is_valid(), bool)
+        points = np.array(si.p, np.float64).T
+        normals = np.array(si.sh_frame.n, np.float64).T
+        normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-12)
+        normals *= np.where((normals * dirs).sum(1) > 0, -1.0, 1.0)[:, None]
+        return hit, points, normals
+
+    def escapes(self, origins: np.ndarray, dirs: np.ndarray) -> np.ndarray:
+        """Whether rays leave the mesh without hitting it."""
+        return ~np.array(self.scene.ray_test(self._rays(origins, dirs)), bool)
+
+
+def transport_matrix(tracer: Tracer, points: np.ndarray, normals: np.ndarray, width: int, height: int,
+                     seed: int = 0) -> np.ndarray:
+    """(N, height * width) float32: the diffuse (albedo ALBEDO) direct-light operator."""
+    rng = np.random.default_rng(seed)
+    n_tex = width * height
+    rows, cols = np.divmod(np.arange(n_tex), width)
+    omega = texel_solid_angles(width, height)[rows] * (ALBEDO / np.pi)
+    out = np.zeros((len(points), n_tex), np.float32)
+    for s in range(0, len(points), ROWS_PER_CHUNK):
+        p, n = points[s:s + ROWS_PER_CHUNK], normals[s:s + ROWS_PER_CHUNK]
+        jitter = rng.random((len(p), n_tex, 2))
+        d = directions((cols + jitter[..., 0]) / width, (rows + jitter[..., 1]) / height)
+        cos = np.einsum("nk,ntk->nt", n, d)
+        i, t = np.nonzero(cos > 0)
+        origins = p[i] + tracer.epsilon * n[i]
+        free = tracer.escapes(origins, d[i, t])
+        block = np.zeros((len(p), n_tex), np.float32)
+        block[i[free], t[free]] = cos[i[free], t[free]] * omega[t[free]]
+        out[s:s + len(p)] = block
+    return out
