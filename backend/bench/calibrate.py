@@ -10,48 +10,23 @@ each preset on the dragon benchmark scene (synthesised once; see ``bench sweep``
 
 ``expected_f1`` is F1@0.01 as a fraction (0.9 = 90 %). ``--from-results FILE`` writes the
 file from a sweep's ``results.jsonl`` instead of running anything; then each preset also
-gets ``recommended_overrides`` (ReconstructConfig fields, as in ``PRESETS``): the settings of
+gets ``recommended_overrides`` (ReconstructConfig fields, as in ``optimize/presets.py``): the settings of
 the most accurate swept run that fits the preset's time target, when it beats the preset by
 more than ``--margin`` F1 points.
-:func:`preset_for_budget` picks a preset for a time budget from the file."""
+``backend.optimize.presets.preset_for_budget`` picks a preset for a time budget from the file."""
 
 from __future__ import annotations
 
-import json
 import time
 from pathlib import Path
 
 from .. import fsio
+from ..optimize.presets import CALIBRATION_FILE
 
 REPO = Path(__file__).resolve().parents[2]
-PRESETS_FILE = REPO / "backend" / "presets.json"
 SCENE = "dragon"
 # time (minutes) and F1@0.01 (percent) each preset is meant to reach on the dragon; None: no limit
 TARGETS = {"draft": (3.0, 80.0), "balanced": (10.0, 90.0), "final": (None, None)}
-
-
-def load(path: Path = PRESETS_FILE) -> dict:
-    """The calibration file, or {} when it is absent or unreadable."""
-    try:
-        doc = json.loads(Path(path).read_text())
-    except (OSError, ValueError):
-        return {}
-    return doc if isinstance(doc, dict) and isinstance(doc.get("presets"), dict) else {}
-
-
-def preset_for_budget(minutes: float, path: Path = PRESETS_FILE, default: str = "balanced") -> str:
-    """The most accurate calibrated preset whose expected time fits ``minutes``.
-
-    When none fits, the fastest calibrated preset (it will run against the budget); without a
-    calibration file (or with no usable entries), ``default``."""
-    entries = {name: p for name, p in load(path).get("presets", {}).items()
-               if isinstance(p, dict) and isinstance(p.get("expected_minutes"), (int, float))}
-    if not entries:
-        return default
-    fits = [n for n, p in entries.items() if p["expected_minutes"] <= minutes]
-    if fits:
-        return max(fits, key=lambda n: (entries[n].get("expected_f1") or 0.0, -entries[n]["expected_minutes"]))
-    return min(entries, key=lambda n: entries[n]["expected_minutes"])
 
 
 def entry(row: dict) -> dict:
@@ -73,7 +48,7 @@ def _target(name: str, row: dict) -> dict | None:
 
 
 def overrides(preset_knobs: dict, knobs: dict) -> dict:
-    """The ReconstructConfig fields (as in optimize/config.py's PRESETS) that turn a preset's
+    """The ReconstructConfig fields (as in optimize/presets.py) that turn a preset's
     knobs into ``knobs``."""
     out = {}
     for k, v in knobs.items():
@@ -134,7 +109,7 @@ def calibration(rows: list[dict], machine: dict, scene_description: str, margin:
 
 def add_arguments(parser) -> None:
     parser.add_argument("--presets", default="draft,balanced,final", help="presets to run (default: %(default)s)")
-    parser.add_argument("--out", type=Path, default=PRESETS_FILE, help="calibration file (default: %(default)s)")
+    parser.add_argument("--out", type=Path, default=CALIBRATION_FILE, help="calibration file (default: %(default)s)")
     parser.add_argument("--work", type=Path, default=REPO / "runs" / "bench-calibrate",
                         help="work folder for the scene and the runs (default: %(default)s)")
     parser.add_argument("--from-results", type=Path, metavar="RESULTS",

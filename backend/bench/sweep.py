@@ -68,7 +68,8 @@ class Setting:
 
     def knobs(self) -> dict:
         """The effective value of every knob: defaults, then the preset, then the options."""
-        from ..optimize.config import PRESETS, ReconstructConfig
+        from ..optimize.config import ReconstructConfig
+        from ..optimize.presets import PRESETS
 
         c = dataclasses.asdict(ReconstructConfig())
         c.update(PRESETS[self.preset])

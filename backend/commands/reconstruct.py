@@ -14,7 +14,8 @@ from types import SimpleNamespace
 from .. import variant
 from ..errors import InputError, require
 from ..events import Emitter
-from ..optimize.config import PRESETS, ReconstructConfig
+from ..optimize.config import ReconstructConfig
+from ..optimize.presets import DEFAULT, PRESETS, calibrated, preset_for_budget
 
 INIT_HELP = "carve (visual hull; default with masks), sphere, box, spheres (sphere cloud), points (SfM + Poisson), or a mesh file"
 
@@ -30,10 +31,11 @@ def add_arguments(parser):
 
     add_lighting_arguments(parser)
     parser.add_argument("--out", required=True, type=Path, metavar="RUN", help="run folder")
-    parser.add_argument("--preset", choices=sorted(PRESETS), default="balanced",
-                        help="quality preset (default %(default)s); the options below override it")
+    parser.add_argument("--preset", choices=sorted(PRESETS),
+                        help=f"quality preset (default {DEFAULT}; with --time-budget, the most accurate preset whose "
+                             "calibrated time fits it, see backend/presets.json); the options below override it")
     parser.add_argument("--init", default=None, help=INIT_HELP)
-    parser.add_argument("--time-budget", type=float, metavar="MINUTES", help="wall-clock budget of the whole run")
+    parser.add_argument("--time-budget", type=float, metavar="MINUTES", help="wall-clock budget of the whole run: it stops then with the best mesh so far")
     parser.add_argument("--iterations", type=int, help="cap on optimisation steps over all levels")
     parser.add_argument("--seed", type=int, default=d.seed)
     parser.add_argument("--resume", action="store_true", help="continue the run in RUN from its last snapshot")
@@ -67,6 +69,13 @@ OVERRIDES = ("init", "material", "effects", "initial_faces", "iterations", "seed
              "integrator", "max_depth", "spp", "remesh", "max_levels", "level_iterations", "step", "track_metrics")
 
 
+def choose_preset(args) -> str:
+    """The preset asked for; else, with a time budget, the calibrated one that fits it."""
+    if args.preset:
+        return args.preset
+    return preset_for_budget(args.time_budget) if args.time_budget is not None else DEFAULT
+
+
 def config_from_args(args) -> ReconstructConfig:
     """Defaults, then the preset, then the options given."""
     for name in ("max_size", "coarse_size", "views_per_step", "initial_faces", "spp", "max_levels", "iterations",
@@ -74,7 +83,7 @@ def config_from_args(args) -> ReconstructConfig:
         value = getattr(args, name)
         flag = "--" + name.replace("_", "-")
         require(value is None or value > 0, None, f"{flag} must be positive (got {value})", f"give {flag} a value above 0")
-    values = dict(PRESETS[args.preset])
+    values = dict(PRESETS[choose_preset(args)])
     values.update({k: getattr(args, k) for k in OVERRIDES if getattr(args, k) not in (None, False)})
     if args.time_budget is not None:
         values["time_budget_s"] = 60.0 * args.time_budget
@@ -127,6 +136,10 @@ def run(args) -> int:
     try:
         emit("start", run=str(folder.path), capture=str(args.capture), settings=dataclasses.asdict(config))
         emit("variant", variant=chosen, llvm=os.environ.get("DRJIT_LIBLLVM_PATH"))
+        preset = choose_preset(args)
+        expected = calibrated().get(preset, {})
+        emit("preset", preset=preset, chosen_for_budget=args.preset is None and args.time_budget is not None,
+             expected_minutes=expected.get("expected_minutes"), expected_f1=expected.get("expected_f1"))
         if video is not None:
             capture = video_capture(video, folder, args.resume, emit)
             Appearance.check(capture, config)

@@ -53,12 +53,3 @@ class ReconstructConfig:
     snapshot_every_s: float = 1.0  # the add-on streams at least one update per second
     track_metrics: bool = False  # metrics after every level (time excluded from the budget)
 
-
-# Quality presets (the add-on's Draft / Balanced / Final): overrides of the defaults above;
-# options given explicitly on the command line win over a preset.
-PRESETS = {
-    "draft": {"max_size": 96, "coarse_size": 48, "initial_faces": 2000, "max_levels": 3, "level_iterations": 120,
-              "validation_views": 4},
-    "balanced": {},
-    "final": {"max_size": 256, "initial_faces": 8000, "max_levels": 16, "level_iterations": 600, "views_per_step": 4},
-}

@@ -8,7 +8,8 @@ import math
 import numpy as np
 
 from backend.bench import _pareto
-from backend.bench.calibrate import overrides, preset_for_budget
+from backend.bench.calibrate import overrides
+from backend.optimize.presets import preset_for_budget
 from backend.bench.sweep import GRIDS, Setting
 
 

@@ -16,6 +16,8 @@ import pytest
 
 from backend.geometry.mesh import Mesh, load_mesh, save_mesh
 from backend.geometry.topology import inspect
+from backend.optimize.config import ReconstructConfig
+from backend.optimize.presets import PRESETS, calibrated, preset_for_budget
 from backend.synth.procedural import icosphere
 from tests.helpers import REPO, run_cli
 
@@ -94,6 +96,22 @@ def test_reconstruct_end_to_end(capture, tmp_path):
     assert report["metrics"]["f1@0.01"] > report["init"]["metrics"]["f1@0.01"]
     assert report["skipped_steps"] == 0 and report["settings"]["seed"] == 0
     assert set(report["timings"]) >= {"init", "geometry", "total"}
+
+
+def test_time_budget_picks_the_calibrated_preset_and_stops_on_time(capture, tmp_path):
+    run, minutes = tmp_path / "run", 0.2
+    proc = run_cli("reconstruct", capture, "--out", run, "--init", "sphere", "--time-budget", minutes, *FAST,
+                   timeout=300)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    chosen = next(e for e in events(run) if e["event"] == "preset")
+    assert chosen["chosen_for_budget"] and chosen["preset"] == preset_for_budget(minutes)
+    assert chosen["expected_minutes"] == calibrated().get(chosen["preset"], {}).get("expected_minutes")
+    report = json.loads((run / "report.json").read_text())
+    settings = report["settings"]
+    assert settings["time_budget_s"] == 60 * minutes
+    assert settings["max_levels"] == PRESETS[chosen["preset"]].get("max_levels", ReconstructConfig().max_levels)
+    assert settings["max_size"] == 40  # an explicit option wins over the preset
+    assert 60 * minutes - 1 <= report["timings"]["total"] <= 60 * minutes + 8  # the step in flight, then the result
 
 
 def test_stop_file_cancels_with_an_intact_snapshot_and_resume_finishes(capture, tmp_path):
