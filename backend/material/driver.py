@@ -29,6 +29,7 @@ class MaterialDriver:
     resolution: int = 4  # mesh-color resolution r
     settings: FitSettings = field(default_factory=FitSettings)
     schedule: MaterialSchedule = field(default_factory=MaterialSchedule)
+    reserve: float = 0.25  # share of a run's time budget the geometry leaves to the final material stages
     labels: FaceLabels | None = None
     results: list[FitResult] = field(default_factory=list)
 

@@ -78,10 +78,17 @@ class Reconstruction:
             estimates.append((self.level + min(1.0, self.level_iteration / c.level_iterations)) / c.max_levels)
         return min(0.999, max(estimates))
 
-    def _out_of_budget(self) -> bool:
+    def _out_of_budget(self, reserve: float = 0.0) -> bool:
+        """``reserve``: the share of the time budget held back (for the final material stages)."""
         c = self.config
-        return bool((c.time_budget_s and self.elapsed() >= c.time_budget_s)
+        return bool((c.time_budget_s and self.elapsed() >= c.time_budget_s * (1.0 - reserve))
                     or (c.iterations and self.iteration >= c.iterations))
+
+    def _geometry_reserve(self) -> float:
+        """The share of a time budget the geometry levels leave to the material stages that
+        run to convergence on the final geometry (staged materials only)."""
+        driver = self.appearance.driver
+        return driver.reserve if driver is not None else 0.0
 
     def _timed(self, name: str, start: float) -> None:
         self.timings[name] = round(self.timings.get(name, 0.0) + time.perf_counter() - start, 3)
@@ -151,7 +158,7 @@ class Reconstruction:
                 self._material_cycle(record)
                 self._snapshot(loss=record["loss"])
                 previous = self.levels[-2] if len(self.levels) > 1 else None
-                if (self._out_of_budget() or self.level + 1 >= c.max_levels
+                if (self._out_of_budget(self._geometry_reserve()) or self.level + 1 >= c.max_levels
                         or not keeps_improving(previous, record, c.level_tolerance)
                         or self.budget.limit > c.max_faces):
                     break
@@ -211,7 +218,7 @@ class Reconstruction:
         try:
             while self.level_iteration < c.level_iterations:
                 self.folder.check_stop()
-                if self._out_of_budget():
+                if self._out_of_budget(self._geometry_reserve()):
                     break
                 ids = []
                 while len(ids) < min(c.views_per_step, len(views)):
