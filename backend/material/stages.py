@@ -26,6 +26,7 @@ from dataclasses import dataclass, field
 import drjit as dr
 import mitsuba as mi
 import numpy as np
+from scipy.ndimage import binary_erosion
 
 from .field import squash
 from .model import MeshColorMaterial
@@ -44,6 +45,7 @@ class FitSettings:
     variance_weight: float = 0.0  # lambda in lambda * Var(specular) (per material)
     smoothness_weight: float = 1.0  # x mean squared difference of neighbouring mesh-color samples
     highlight_threshold: float = 0.15  # drop pixels whose predicted highlight exceeds this share
+    edge_erosion: int = 1  # pixels dropped inside each mask's outline (see silhouette_weights)
     seed: int = 0
 
 
@@ -71,6 +73,22 @@ def _weights(weights, images) -> list[np.ndarray]:
         return [np.ones(img.shape[:2], np.float32) for img in images]
     return [np.ones(img.shape[:2], np.float32) if w is None else np.asarray(w, np.float32)
             for w, img in zip(weights, images)]
+
+
+def silhouette_weights(weights: list[np.ndarray], erosion: int) -> list[np.ndarray]:
+    """The weights with an ``erosion``-pixel band inside each mask's outline set to zero.
+
+    Along the silhouette a reconstructed surface that is slightly off shows another part of
+    the object, or grazes it at the wrong angle, so those pixels pull the material toward
+    values that only make up for the geometry (and soft edge pixels mix in the background)."""
+    if erosion <= 0:
+        return weights
+    out = []
+    for w in weights:
+        w = np.asarray(w, np.float32)
+        inside = binary_erosion(w > 0.5, iterations=erosion, border_value=1)
+        out.append(w * inside)
+    return out
 
 
 def _weights3(w: np.ndarray) -> np.ndarray:
@@ -261,10 +279,11 @@ def highlight_masks(renderer, images, weights, material: MeshColorMaterial, thre
 def fit_constants(renderer, images, weights, material: MeshColorMaterial, settings: FitSettings | None = None,
                   emit=None) -> FitResult:
     """Stage 1: one albedo, specular and roughness per material."""
+    settings = settings or FitSettings()
     for name in material.CHANNELS:
         material.make_constant(name)
-    return fit(renderer, images, weights, material, list(material.CHANNELS), settings or FitSettings(),
-               stage="constant", emit=emit)
+    weights = silhouette_weights(_weights(weights, images), settings.edge_erosion)
+    return fit(renderer, images, weights, material, list(material.CHANNELS), settings, stage="constant", emit=emit)
 
 
 def fit_diffuse(renderer, images, weights, material: MeshColorMaterial, settings: FitSettings | None = None,
@@ -272,7 +291,7 @@ def fit_diffuse(renderer, images, weights, material: MeshColorMaterial, settings
     """Stage 2: mesh-color albedo (initialised from the constants), highlights masked out;
     ``light`` also fits the environment brightness factor (the first texture round)."""
     settings = settings or FitSettings()
-    weights = _weights(weights, images)
+    weights = silhouette_weights(_weights(weights, images), settings.edge_erosion)
     material.make_spatial("albedo")
     masks = highlight_masks(renderer, images, weights, material, settings.highlight_threshold, settings.spp)
     kept = [np.asarray(w, np.float32) * (~m) for w, m in zip(weights, masks)]
@@ -291,6 +310,7 @@ def fit_specular(renderer, images, weights, material: MeshColorMaterial, setting
     material.make_spatial("specular")
     if spatial_roughness:
         material.make_spatial("roughness")
+    weights = silhouette_weights(_weights(weights, images), settings.edge_erosion)
     return fit(renderer, images, weights, material, ["albedo", "specular", "roughness"], settings,
                stage="specular", emit=emit)
 

@@ -130,3 +130,28 @@ def test_run_cycle_walks_the_schedule():
     assert schedule.light_fitted and material.light_factor != 1.0
     assert material.channels["albedo"].kind == material.channels["specular"].kind == "colors"
     assert len(schedule.history) == len(ran)
+
+
+def test_silhouette_band_is_left_out_of_the_fit():
+    # pixels in the band just inside each outline do not steer the material: corrupting them
+    # leaves the fit unchanged, while corrupting pixels further inside changes it
+    mesh, cams, lights, truth = scene()
+    cams, lights = cams[:2], lights[:2]
+    images, weights = render_truth(mesh, cams, lights, truth)
+    kept = stages.silhouette_weights(weights, 1)
+    band = [(w > 0.5) & (k == 0) for w, k in zip(weights, kept)]
+    assert all(b.any() for b in band) and all((k > 0).any() for k in kept)
+    assert stages.silhouette_weights(weights, 0) is weights
+
+    def constants(targets):
+        material = MeshColorMaterial(mesh, 1)
+        renderer = SceneRenderer(mesh, material.field, cams, lights, None, RenderSettings(spp=4, max_depth=2,
+                                                                                          integrator="prb"))
+        stages.fit_constants(renderer, targets, weights, material, stages.FitSettings(iterations=8, edge_erosion=1))
+        return material.values("albedo")
+
+    clean = constants(images)
+    in_band = constants([np.where(b[..., None], 5.0, img) for b, img in zip(band, images)])
+    inner = constants([np.where((k > 0)[..., None], 5.0 * img, img) for k, img in zip(kept, images)])
+    np.testing.assert_allclose(in_band, clean, atol=1e-6)
+    assert np.abs(inner - clean).max() > 0.01  # (8 small steps)
