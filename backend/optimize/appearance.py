@@ -30,6 +30,7 @@ class Appearance:
         self.capture, self.config, self.emit = capture, config, emit
         self.measure, self.overrides, self.driver = self.check(capture, config)
         self.decision: effects.EffectsDecision | None = None
+        self.specular_off = False  # the diffuse-only decision took the specular lobe out of training
         self.history: list[dict] = []
         self.seconds = 0.0
 
@@ -64,11 +65,17 @@ class Appearance:
         """One stage of the material schedule on the current geometry."""
         if self.driver is None or self.driver.done:
             return None
+        if self.driver.schedule.stage == "specular" and self.decision is not None and not self.decision.specular:
+            # diffuse-only, re-checked on entering the stage: no specular lobe to texture
+            self.driver.schedule.stage = "done"
+            return None
         start = time.perf_counter()
         stage_before = self.driver.schedule.stage
         self.emit("stage", stage=f"material:{stage_before}", level=level, faces=mesh.n_faces)
         renderer = self._renderer(mesh, material, views, geometry=False)
         result = self.driver.cycle(renderer, [v.target for v in views], self._masks(views), material, self.emit)
+        if self.decision is not None and not self.decision.specular:
+            _disable_specular(material)  # the constant stage fits every channel: keep the diffuse-only model
         self.seconds += time.perf_counter() - start
         if self.driver.schedule.stage != stage_before and self.driver.schedule.stage == "specular":
             self.decide(mesh, material, views, reason="materials became spatially varying")
@@ -99,7 +106,11 @@ class Appearance:
                                        [v.mask if v.mask is not None else np.ones(v.target.shape[:2]) for v in probe],
                                        _emitters(self.capture), cfg, self.overrides, self.measure)
         if not self.decision.specular:
+            self.specular_off = self.specular_off or "specular" in material.trainable
             _disable_specular(material)
+        elif self.specular_off:  # highlights found after a diffuse-only decision: the lobe is trained again
+            material.trainable = (*material.trainable, "specular")
+            self.specular_off = False
         seconds = time.perf_counter() - start
         self.seconds += seconds
         enabled = {"max_depth": self.decision.max_depth, "shadows": self.decision.shadows,
