@@ -103,3 +103,62 @@ def test_effects_option_parsing(spec, measure, overrides):
 def test_unknown_effect_is_rejected():
     with pytest.raises(ValueError, match="unknown effect"):
         effects.parse_effects("caustics")
+
+
+def test_diffuse_only_decision_holds_through_the_material_schedule(tmp_path):
+    """A diffuse object: the staged schedule fits no specular lobe (the constant stage's fit is
+    zeroed, the specular stage is skipped after the re-check on entering it)."""
+    from backend.capture.format import load_capture
+    from backend.events import null_emitter
+    from backend.geometry.mesh import load_mesh
+    from backend.optimize.appearance import Appearance
+    from backend.optimize.config import ReconstructConfig
+    from backend.optimize.views import ViewSet
+    from tests.helpers import run_cli
+
+    out = tmp_path / "capture"
+    run_cli("synth", "--out", out, "--views", 6, "--resolution", 32, "--spp", 32, "--specular", 0,
+            "--albedo", "0.6,0.5,0.4", "--lighting", "env", "--env", "sky", "--held-out", 0, check=True)
+    capture = load_capture(out)
+    app = Appearance(capture, ReconstructConfig(material="staged", effects="auto"), null_emitter())
+    app.driver.schedule.constant_cycles = 1
+    app.driver.settings.iterations = 4
+    views = ViewSet(capture, 32).views
+    mesh = load_mesh(capture.path(capture.ground_truth["mesh"]))
+    material = app.initial_material(mesh, views)
+    app.decide(mesh, material, views, reason="initial mesh")
+    assert not app.decision.specular, app.decision.reasons
+    stages = []
+    for _ in range(8):
+        result = app.material_cycle(mesh, material, views, level=0)
+        if result is None:
+            break
+        stages.append(result["stage"])
+        assert np.all(material.values("specular") < 1e-5) and "specular" not in material.trainable
+    assert app.driver.done and "specular" not in stages and "diffuse" in stages, stages
+    assert [h["reason"] for h in app.history] == ["initial mesh", "materials became spatially varying"]
+
+
+def test_bench_targets_and_table():
+    """The effects benchmark's verdict (issue #9's targets) and its all-scenes table."""
+    from backend.bench import effects as bench
+
+    ref = {"seconds": 400.0, "cpu_seconds": 380.0, "f1": 90.0, "albedo_rmse": 0.050, "psnr": 25.0, "steps": 60,
+           "rc": 0, "decision": {"max_depth": 4, "shadows": True, "specular": True}}
+    fast = dict(ref, seconds=100.0, cpu_seconds=90.0, f1=89.5, albedo_rmse=0.055, psnr=24.7,
+                decision={"max_depth": 3, "shadows": False, "specular": False})
+    assert [c["ok"] for c in bench.verdict("blob_env", ref, fast)] == [True, True, True]
+    assert not bench.verdict("blob_env", ref, dict(fast, seconds=250.0))[0]["ok"]  # only 1.6x faster
+    corner = bench.verdict("corner", ref, fast)
+    assert [c["target"].split(" (")[0] for c in corner][:2] == ["keeps multi-bounce", "albedo RMSE matches"]
+    assert all(c["ok"] for c in corner)
+    direct = dict(fast, decision={"max_depth": 2}, albedo_rmse=0.08)
+    assert [c["ok"] for c in bench.verdict("corner", ref, direct)] == [False, False, True, True]
+    lossy = bench.verdict("dragon_cornell", ref, dict(fast, f1=88.5, psnr=24.0))
+    assert [c["ok"] for c in lossy] == [False, False]
+    results = {"scenes": {"corner": {"all": ref, "auto": fast, "auto,-shadows": fast},
+                          "dragon_cornell": {"all": ref, "auto": {"rc": 1}}}}
+    results["summary"] = {s: bench.summarise(s, r) for s, r in results["scenes"].items()}
+    assert results["summary"]["corner"]["ok"] and results["summary"]["dragon_cornell"] is None
+    text = bench.table(results)
+    assert "4.0x" in text and "PASS" in text and "1 indirect" in text and "incomplete" in text
