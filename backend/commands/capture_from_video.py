@@ -27,7 +27,7 @@ from ..capture.convert import convert
 from ..capture.format import FILENAME, save_capture
 from ..capture.images import read_mask, read_rgba, write_mask
 from ..capture.importers.common import opencv_camera
-from ..capture.model import Capture, CameraResponse, Environment, Frame
+from ..capture.model import Capture, Environment, Frame
 from ..capture.undistort import needs_resampling, pinhole, resample
 from ..capture.validate import validate_environment
 from ..errors import require
@@ -180,7 +180,7 @@ def align_capture_lighting(capture: Capture, rotation_z_deg: float | None, emit)
     estimate = align_lighting(capture, hull, read_rgba(env.path)[0][..., :3], rotation_z_deg=rotation_z_deg,
                               emit=emit)
     capture.environment = Environment(env.path, estimate.strength, estimate.rotation_z_deg, "estimated")
-    capture.camera_response = CameraResponse(provenance="normalised")
+    capture.camera_response = estimate.response
     capture.provenance["lighting"] = dict(estimate.provenance(), hull_faces=hull.n_faces,
                                           rotation_given=rotation_z_deg is not None)
 

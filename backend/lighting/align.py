@@ -9,10 +9,11 @@ search over all rotations is followed by a gradient refinement: a rotation by θ
 map's columns by θ·W/360 texels (periodic linear interpolation), whose derivative is exact,
 and the gains drop out of the derivative because they are optimal (d loss/d gain = 0).
 
-Only the product exposure × white balance × strength × albedo is observable. With the
-camera response's exposure 1 and white balance (1, 1, 1) (docs/capture-format.md) the
-strength is the mean of the three gains, i.e. the strength at which the object's mean
-albedo is 0.5 (the material stages' start), and the gains' ratios are its colour."""
+The object alone observes only the product exposure × white balance × strength × albedo.
+Where the frames' background shows the surroundings, it fixes exposure × white balance ×
+strength (:mod:`.response`); otherwise the camera response is normalised to exposure 1 and
+white balance (1, 1, 1) and the strength is the mean of the three gains, i.e. the strength at
+which the object's mean albedo is 0.5 (the material stages' start)."""
 
 from __future__ import annotations
 
@@ -22,9 +23,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..capture.images import read_mask, read_rgba, srgb_to_linear
-from ..capture.model import Camera, Capture
+from ..capture.model import Camera, CameraResponse, Capture
 from ..errors import require
 from ..geometry.mesh import Mesh
+from .response import BackgroundMatch, camera_response, match_background
 from .transport import Tracer, pixel_rays, transport_matrix
 
 CLIPPED = 254.0 / 255.0  # encoded 8-bit values at or above this are clipped
@@ -38,6 +40,7 @@ class AlignConfig:
     env_width: int = 64  # columns of the reduced map (rows: half)
     coarse_step_deg: float = 2.0
     trim: float = 0.2  # share of pixels most brighter than the diffuse fit (highlights) dropped after the search
+    gloss_alpha: float = 0.15  # GGX alpha of the glossy operator fitted beside the diffuse one (0: none)
     iterations: int = 40  # most refinement steps
     tolerance_deg: float = 0.01  # refinement stops when a step is smaller
     seed: int = 0
@@ -49,6 +52,9 @@ class LightingEstimate:
     strength: float
     gains: list[float]  # frame ≈ gain × render (albedo 0.5, strength 1), per channel
     loss: float  # relative squared residual at the estimate
+    response: CameraResponse = field(default_factory=CameraResponse)
+    scale_from: str = "mean albedo 0.5"  # or "background"
+    background: BackgroundMatch | None = None
     coarse: list[tuple[float, float]] = field(default_factory=list)  # (degrees, loss) of the search
     refine: list[tuple[float, float]] = field(default_factory=list)  # (degrees, loss) of accepted steps
     views: list[str] = field(default_factory=list)
@@ -61,7 +67,8 @@ class LightingEstimate:
                 "seconds": round(self.seconds, 2),
                 "coarse_curve": [[round(a, 3), float(f"{b:.6g}")] for a, b in self.coarse],
                 "refine_curve": [[round(a, 4), float(f"{b:.6g}")] for a, b in self.refine],
-                "normalisation": "exposure 1, white balance 1, mean albedo 0.5"}
+                "scale_from": self.scale_from,
+                "background": self.background.provenance() if self.background else None}
 
 
 def _box(array: np.ndarray, width: int, height: int) -> np.ndarray:
@@ -82,8 +89,10 @@ def reduce_environment(pixels: np.ndarray, width: int) -> np.ndarray:
     return _box(np.asarray(pixels[..., :3], np.float32), width, width // 2)
 
 
-def frame_samples(capture: Capture, config: AlignConfig) -> list[tuple[str, Camera, np.ndarray, np.ndarray]]:
-    """(name, small camera, linear frame, usable pixels) of evenly spread frames."""
+def frame_samples(capture: Capture, config: AlignConfig
+                  ) -> list[tuple[str, Camera, np.ndarray, np.ndarray, np.ndarray]]:
+    """(name, small camera, linear frame, object pixels, background pixels) of evenly spread
+    frames; the pixels are wholly inside (outside) the mask and unclipped."""
     frames = capture.frames
     picks = sorted({int(i) for i in np.linspace(0, len(frames), config.views, endpoint=False)})
     out = []
@@ -91,15 +100,15 @@ def frame_samples(capture: Capture, config: AlignConfig) -> list[tuple[str, Came
         frame = frames[i]
         pixels, linear = read_rgba(frame.image)
         rgb = pixels[..., :3]
-        usable = read_mask(frame.mask) > 0.5 if frame.mask is not None else np.ones(rgb.shape[:2], bool)
-        if not linear:
-            usable &= rgb.max(-1) < CLIPPED
-            rgb = srgb_to_linear(rgb)
+        mask = read_mask(frame.mask) if frame.mask is not None else np.ones(rgb.shape[:2], np.float32)
+        unclipped = np.ones(rgb.shape[:2], bool) if linear else rgb.max(-1) < CLIPPED
+        rgb = rgb if linear else srgb_to_linear(rgb)
         cam = frame.camera
         f = min(1.0, config.size / max(cam.width, cam.height))
         small = cam.scaled(f)
-        out.append((frame.name, small, _box(rgb, small.width, small.height),
-                    _box(usable.astype(np.float32), small.width, small.height) >= INTERIOR))
+        share = [_box((m & unclipped).astype(np.float32), small.width, small.height) >= INTERIOR
+                 for m in (mask > 0.5, mask <= 0.0)]
+        out.append((frame.name, small, _box(rgb, small.width, small.height), *share))
     return out
 
 
@@ -116,40 +125,51 @@ def shift_columns(env: np.ndarray, degrees: float) -> tuple[np.ndarray, np.ndarr
 
 
 class RotationLoss:
-    """Relative squared residual between frames and gain-scaled renders, as a function of the
-    rotation, with its exact derivative."""
+    """Relative squared residual between frames and renders as a function of the rotation,
+    with its exact derivative. Renders are the operators' images (diffuse first, then an
+    optional glossy one) combined per channel with the least-squares coefficients (the
+    glossy one kept >= 0)."""
 
-    def __init__(self, matrix: np.ndarray, env: np.ndarray, targets: np.ndarray):
-        self.matrix = matrix  # (N, texels)
+    def __init__(self, matrices: list[np.ndarray], env: np.ndarray, targets: np.ndarray):
+        self.matrices = matrices  # each (N, texels)
         self.env = env  # (H, W, 3) reduced map
         self.targets = targets.astype(np.float64)  # (N, 3)
         self.norm = float((self.targets ** 2).sum())
 
     def subset(self, keep: np.ndarray) -> "RotationLoss":
-        return RotationLoss(self.matrix[keep], self.env, self.targets[keep])
+        return RotationLoss([m[keep] for m in self.matrices], self.env, self.targets[keep])
+
+    def _fit(self, env: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(coefficients (B, 3), fitted images (N, 3)) for the shifted map."""
+        flat = env.reshape(-1, 3).astype(np.float32)
+        renders = np.stack([(m @ flat).astype(np.float64) for m in self.matrices])  # (B, N, 3)
+        coeffs = np.zeros((len(renders), 3))
+        for c in range(3):
+            a, y = renders[:, :, c].T, self.targets[:, c]
+            x = np.linalg.lstsq(a, y, rcond=None)[0] if len(renders) > 1 else np.zeros(1)
+            if len(renders) == 1 or np.any(x[1:] < 0):
+                x = np.zeros(len(renders))
+                x[0] = (a[:, 0] @ y) / max(a[:, 0] @ a[:, 0], 1e-30)
+            coeffs[:, c] = x
+        return coeffs, np.einsum("bc,bnc->nc", coeffs, renders)
 
     def brighter(self, degrees: float) -> np.ndarray:
         """How much brighter each pixel is than the fit, relative to the fit (N,)."""
-        renders = (self.matrix @ shift_columns(self.env, degrees)[0].reshape(-1, 3).astype(np.float32)).astype(np.float64)
-        fit = (self.gains(renders) * renders).sum(1)
+        fit = self._fit(shift_columns(self.env, degrees)[0])[1].sum(1)
         return (self.targets.sum(1) - fit) / np.maximum(fit, 1e-6 * max(fit.max(), 1e-30))
 
-    def gains(self, renders: np.ndarray) -> np.ndarray:
-        return (renders * self.targets).sum(0) / np.maximum((renders ** 2).sum(0), 1e-30)
-
     def __call__(self, degrees: float, gradient: bool = True) -> tuple[float, float, np.ndarray]:
-        """(loss, d loss / d degree, per-channel gains)."""
+        """(loss, d loss / d degree, per-channel gains of the diffuse image)."""
         env, d_env = shift_columns(self.env, degrees)
-        renders = self.matrix @ env.reshape(-1, 3).astype(np.float32)
-        renders = renders.astype(np.float64)
-        g = self.gains(renders)
-        residual = self.targets - g * renders
+        coeffs, fit = self._fit(env)
+        residual = self.targets - fit
         loss = float((residual ** 2).sum()) / self.norm
         if not gradient:
-            return loss, 0.0, g
-        back = self.matrix.T @ residual.astype(np.float32)  # (texels, 3)
-        grad = -2.0 * float((g * back * d_env.reshape(-1, 3)).sum()) / self.norm
-        return loss, grad, g
+            return loss, 0.0, coeffs[0]
+        r = residual.astype(np.float32)
+        back = sum(coeffs[b] * (m.T @ r) for b, m in enumerate(self.matrices))  # (texels, 3)
+        grad = -2.0 * float((back * d_env.reshape(-1, 3)).sum()) / self.norm
+        return loss, grad, coeffs[0]
 
 
 def refine(loss: RotationLoss, start: float, step: float, config: AlignConfig,
@@ -193,22 +213,24 @@ def align_lighting(capture: Capture, mesh: Mesh, env_pixels: np.ndarray, config:
     start = time.time()
     tracer = Tracer(mesh)
     samples = frame_samples(capture, config)
-    points, normals, targets = [], [], []
-    for name, camera, rgb, usable in samples:
+    points, normals, views, targets = [], [], [], []
+    for name, camera, rgb, usable, _ in samples:
         ys, xs = np.nonzero(usable)
         origins, dirs = pixel_rays(camera, np.c_[xs, ys].astype(np.float64))
         hit, p, n = tracer.first_hits(origins, dirs)
         points.append(p[hit])
         normals.append(n[hit])
+        views.append(-dirs[hit])
         targets.append(rgb[ys[hit], xs[hit]])
-    points, normals, targets = np.concatenate(points), np.concatenate(normals), np.concatenate(targets)
+    points, normals, views, targets = (np.concatenate(a) for a in (points, normals, views, targets))
     require(len(points) >= 50 and float(np.abs(targets).sum()) > 0, capture.root,
             f"only {len(points)} usable object pixels (inside the masks, unclipped, on the hull) to align the "
             "lighting with", "check the masks, or pass --no-align-lighting")
     env = reduce_environment(env_pixels, config.env_width)
     emit("progress", stage="lighting:transport", pixels=len(points), texels=env.shape[0] * env.shape[1])
-    matrix = transport_matrix(tracer, points, normals, env.shape[1], env.shape[0], config.seed)
-    loss = RotationLoss(matrix, env, targets)
+    matrices = transport_matrix(tracer, points, normals, env.shape[1], env.shape[0], config.seed, views,
+                                config.gloss_alpha)
+    loss = RotationLoss(list(matrices) if config.gloss_alpha > 0 else [matrices], env, targets)
 
     coarse = []
     if rotation_z_deg is None:
@@ -234,7 +256,9 @@ def align_lighting(capture: Capture, mesh: Mesh, env_pixels: np.ndarray, config:
         theta = float(rotation_z_deg)
         curve = [(theta, loss(theta, gradient=False)[0])]
     value, _, gains = loss(theta, gradient=False)
-    return LightingEstimate(rotation_z_deg=float(theta % 360.0), strength=float(np.mean(gains)),
-                            gains=[float(g) for g in gains], loss=value, coarse=coarse,
-                            refine=[(d % 360.0, v) for d, v in curve], views=[s[0] for s in samples],
-                            pixels=len(points), seconds=time.time() - start)
+    background = match_background([(s[1], s[2], s[4]) for s in samples], reduce_environment(env_pixels, 256), theta)
+    response, strength, scale_from = camera_response(gains, background)
+    return LightingEstimate(rotation_z_deg=float(theta % 360.0), strength=strength,
+                            gains=[float(g) for g in gains], loss=value, response=response, scale_from=scale_from,
+                            background=background, coarse=coarse, refine=[(d % 360.0, v) for d, v in curve],
+                            views=[s[0] for s in samples], pixels=len(points), seconds=time.time() - start)
