@@ -59,6 +59,21 @@ def test_native_capture_downscaled(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["out", "src"]  # no temporary folders left
 
 
+def test_camera_response_and_estimated_environment_survive_import(tmp_path):
+    src = make_capture(tmp_path / "src")
+    response = {"curve": "srgb", "exposure": 0.8, "white_balance": [1.1, 1.0, 0.9], "provenance": "estimated"}
+    edit_json(src / "capture.json", lambda d: (d.__setitem__("camera_response", response),
+                                               d["environment"].__setitem__("provenance", "estimated")))
+    run_cli("import", src, "--out", tmp_path / "out", check=True)
+    doc = json.loads((tmp_path / "out" / "capture.json").read_text())
+    assert doc["camera_response"] == response
+    assert doc["environment"]["provenance"] == "estimated" and doc["environment"]["rotation_z_deg"] == 30.0
+    capture = load_capture(tmp_path / "out")
+    assert capture.camera_response.exposure == 0.8 and capture.camera_response.white_balance == (1.1, 1.0, 0.9)
+    plain = json.loads((make_capture(tmp_path / "plain") / "capture.json").read_text())
+    assert "camera_response" not in plain and "provenance" not in plain["environment"]  # identity: not written
+
+
 def test_nerf_rgba_masks_written_separately(tmp_path):
     cams = syn.sphere_cameras(3)
     masks = [syn.rasterise(*syn.blob(), c) for c in cams]
@@ -147,6 +162,17 @@ def _empty_masks(src):
     return src, "masks"
 
 
+def _bad_response(src):
+    edit_json(src / "capture.json", lambda d: d.__setitem__("camera_response", {"exposure": 1.0,
+                                                                                "white_balance": [1.0, 0.0, 1.0]}))
+    return src, "capture.json"
+
+
+def _unknown_curve(src):
+    edit_json(src / "capture.json", lambda d: d.__setitem__("camera_response", {"curve": "log-c"}))
+    return src, "capture.json"
+
+
 def _unknown_layout(src):
     empty = src.parent / "empty"
     empty.mkdir()
@@ -155,7 +181,7 @@ def _unknown_layout(src):
 
 @pytest.mark.parametrize("breaks", [_missing_image, _mask_size, _mask_count, _missing_mask_file, _nan_pose,
                                     _nan_pose_native, _singular_pose, _unreadable_env, _not_equirectangular,
-                                    _empty_masks, _unknown_layout], ids=lambda f: f.__name__.strip("_"))
+                                    _empty_masks, _bad_response, _unknown_curve, _unknown_layout], ids=lambda f: f.__name__.strip("_"))
 def test_bad_input(tmp_path, breaks):
     src = make_capture(tmp_path / "src")
     if breaks in (_missing_mask_file, _nan_pose, _singular_pose):
