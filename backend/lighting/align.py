@@ -4,7 +4,9 @@ The coarse mesh (the masks' visual hull) is rendered with a constant diffuse alb
 under the map (direct light, :mod:`.transport`) at a few views and a small size, and compared
 with the linearised frames on pixels well inside the masks that are not clipped. Per colour
 channel the gain that best scales the render onto the frame is solved in closed form at
-every rotation, so the object's brightness and colour do not bias the rotation. A coarse
+every rotation, so the object's brightness and colour do not bias the rotation; beside it a
+white glossy (GGX) image gets its own non-negative gain, so highlights are fitted rather than
+read as diffuse shading turned towards the viewer. A coarse
 search over all rotations is followed by a gradient refinement: a rotation by θ shifts the
 map's columns by θ·W/360 texels (periodic linear interpolation), whose derivative is exact,
 and the gains drop out of the derivative because they are optimal (d loss/d gain = 0).
@@ -50,7 +52,7 @@ class AlignConfig:
 class LightingEstimate:
     rotation_z_deg: float
     strength: float
-    gains: list[float]  # frame ≈ gain × render (albedo 0.5, strength 1), per channel
+    gains: list[float]  # per channel: frame ≈ gain × diffuse render (albedo 0.5, strength 1) + glossy part
     loss: float  # relative squared residual at the estimate
     response: CameraResponse = field(default_factory=CameraResponse)
     scale_from: str = "mean albedo 0.5"  # or "background"
