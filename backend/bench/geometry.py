@@ -96,9 +96,9 @@ def run_dragon(args, init: str, name: str) -> dict:
         init = str(path)
     run = args.out / f"run_{name}"
     start = time.perf_counter()
-    _backend("reconstruct", capture, "--out", run, "--overwrite", "--init", init, "--max-size", 128,
-             "--coarse-size", 128, "--time-budget", args.minutes, "--material", _material(args.material),
-             "--effects", args.effects, "--track-metrics")
+    _backend("reconstruct", capture, "--out", run, "--overwrite", "--init", init, "--preset", "balanced",
+             "--max-size", 128, "--coarse-size", 128, "--time-budget", args.minutes,
+             "--material", _material(args.material), "--effects", args.effects, "--track-metrics")
     wall = time.perf_counter() - start
     report = _report(run)
     init_m, fin = report["init"]["metrics"], report["metrics"]
