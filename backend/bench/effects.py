@@ -73,11 +73,11 @@ def _score(run: Path, capture: Path) -> dict:
 
 
 def describe(decision: dict | None) -> str:
-    """'direct', '1 indirect', ... plus shadows / specular: what a run simulated."""
+    """'direct', '2 bounces', ... plus shadows / specular: what a run simulated (the panel's words)."""
     if not decision:
         return "-"
     depth = decision["max_depth"]
-    parts = ["direct" if depth <= 2 else f"{depth - 2} indirect"]
+    parts = ["direct" if depth <= 2 else f"{depth - 1} bounces"]
     parts += [name for name in ("shadows", "specular") if decision.get(name)]
     return "+".join(parts)
 

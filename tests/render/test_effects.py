@@ -76,17 +76,32 @@ def test_colour_bleeding_corner_keeps_multiple_bounces():
     assert d.measured["bounces"]["3"]["relative"] > 0.05
 
 
-def test_object_on_a_floor_under_a_low_light_needs_shadow_gradients():
+def _ball_on_floor():
     floor, _ = _quads([([-2, -2, 0], [4, 0, 0], [0, 4, 0], [0.7] * 3)])
-    box = procedural.icosphere(2, 0.5)
-    box.vertices[:, 2] += 0.5
-    mesh = Mesh(np.vstack([floor.vertices, box.vertices]), np.vstack([floor.faces, box.faces + 4]))
+    ball = procedural.icosphere(2, 0.5)
+    ball.vertices[:, 2] += 0.5
+    mesh = Mesh(np.vstack([floor.vertices, ball.vertices]), np.vstack([floor.faces, ball.faces + 4]))
     cams = [Camera(RES, RES, 40.0, 40.0, RES / 2, RES / 2, layout.look_at(e, [0, 0, 0.3]))
             for e in ([0, -4, 3], [3, -3, 3], [-3, -2, 3.5])]
-    lights = [[PointLight(np.array([3.0, 1.0, 1.2]), np.full(3, 15.0))]] * len(cams)
-    d = _decide(mesh, ConstantField([0.7, 0.7, 0.7], 0.0, 0.5), cams, lights)
+    return mesh, cams
+
+
+def test_object_on_a_floor_under_a_low_sun_needs_shadow_gradients():
+    mesh, cams = _ball_on_floor()
+    d = _decide(mesh, ConstantField([0.7, 0.7, 0.7], 0.0, 0.5), cams, [[]] * len(cams),
+                Environment("procedural", 1.0, 0.0), procedural.sky(128, sun_elevation_deg=20.0))
     assert d.shadows and d.measured["self_shadowing"] > 0.05, d.reasons
     assert d.settings(RenderSettings(), geometry=True).sppi > 0
+
+
+def test_point_lights_get_no_shadow_gradients():
+    """The projective integrators sample no shadow boundaries of delta lights: under point
+    lights the shadow term would cost without adding to the gradient, so it stays off."""
+    mesh, cams = _ball_on_floor()
+    lights = [[PointLight(np.array([3.0, 1.0, 1.2]), np.full(3, 15.0))]] * len(cams)
+    d = _decide(mesh, ConstantField([0.7, 0.7, 0.7], 0.0, 0.5), cams, lights)
+    assert not d.shadows and d.measured["self_shadowing"] is None and "point lights" in d.reasons["shadows"]
+    assert d.settings(RenderSettings(), geometry=True).sppi == 0
 
 
 @pytest.mark.parametrize("spec, measure, overrides", [
@@ -161,4 +176,4 @@ def test_bench_targets_and_table():
     results["summary"] = {s: bench.summarise(s, r) for s, r in results["scenes"].items()}
     assert results["summary"]["corner"]["ok"] and results["summary"]["dragon_cornell"] is None
     text = bench.table(results)
-    assert "4.0x" in text and "PASS" in text and "1 indirect" in text and "incomplete" in text
+    assert "4.0x" in text and "PASS" in text and "2 bounces" in text and "incomplete" in text
