@@ -44,6 +44,7 @@ class MaterialBench:
     variance_weight: float = 0.1
     smoothness_weight: float = 1.0
     edge_erosion: int = 1
+    robust: float = 0.0
     geometry: str = ""  # a reconstructed mesh; empty: the truth
     seed: int = 0
 
@@ -55,6 +56,7 @@ HELP = {"mesh": "the object (its truth material: procedural albedo pattern, spec
         "variance_weight": "lambda of the specular variance penalty",
         "smoothness_weight": "weight of the mesh-color smoothness prior",
         "edge_erosion": "pixels dropped inside each mask's outline when fitting",
+        "robust": "Charbonnier scale of the fitting loss (0: squared error)",
         "geometry": "a reconstructed mesh in the capture's frame (default: the true geometry)"}
 
 
@@ -145,7 +147,7 @@ def benchmark(spec: MaterialBench, out: Path, emit) -> dict:
 
     def settings(iterations, **kw):
         return stages.FitSettings(iterations=iterations, lr=spec.lr, seed=spec.seed,
-                                  smoothness_weight=spec.smoothness_weight, edge_erosion=spec.edge_erosion, **kw)
+                                  smoothness_weight=spec.smoothness_weight, edge_erosion=spec.edge_erosion, robust=spec.robust, **kw)
 
     emit("stage", stage="material:constant", level=0, faces=mesh.n_faces)
     stage_log.append(stages.fit_constants(renderer, images, masks, material, settings(spec.constant_iterations), emit))

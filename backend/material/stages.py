@@ -46,6 +46,7 @@ class FitSettings:
     smoothness_weight: float = 1.0  # x mean squared difference of neighbouring mesh-color samples
     highlight_threshold: float = 0.15  # drop pixels whose predicted highlight exceeds this share
     edge_erosion: int = 1  # pixels dropped inside each mask's outline (see silhouette_weights)
+    robust: float = 0.0  # > 0: Charbonnier loss with this scale (linear radiance) instead of squared error
     seed: int = 0
 
 
@@ -73,6 +74,15 @@ def _weights(weights, images) -> list[np.ndarray]:
         return [np.ones(img.shape[:2], np.float32) for img in images]
     return [np.ones(img.shape[:2], np.float32) if w is None else np.asarray(w, np.float32)
             for w, img in zip(weights, images)]
+
+
+def pixel_loss(diff, robust: float = 0.0):
+    """Per-entry loss of a residual: squared, or with ``robust`` > 0 the Charbonnier loss
+    2 c (sqrt(d^2 + c^2) - c), squared near 0 and linear beyond c, so the few pixels that
+    wrong geometry shades far off weigh less than under squared error (Dr.Jit)."""
+    if robust <= 0:
+        return dr.square(diff)
+    return 2.0 * robust * (dr.sqrt(dr.square(diff) + robust * robust) - robust)
 
 
 def silhouette_weights(weights: list[np.ndarray], erosion: int) -> list[np.ndarray]:
@@ -201,7 +211,7 @@ def fit(renderer, images: list[np.ndarray], weights: list[np.ndarray] | None, ma
                 factor.set(opt["light"])
             img = renderer.render(v, seed=settings.seed * 100003 + it * 17 + v,
                                   spp=settings.spp or None, params=material.attach(renderer.params))
-            view_loss = dr.sum(w[v] * dr.square(img - targets[v])).array / (norms[v] * count)
+            view_loss = dr.sum(w[v] * pixel_loss(img - targets[v], settings.robust)).array / (norms[v] * count)
             # one backward pass per view: the integrator re-traces the scene when differentiating,
             # so it must happen while this view's lights are still in place
             dr.backward(view_loss)
@@ -317,7 +327,8 @@ def fit_specular(renderer, images, weights, material: MeshColorMaterial, setting
 
 @dataclass
 class MaterialSchedule:
-    """Which material stage the next cycle runs; advances when the loss stops improving."""
+    """Which material stage the next cycle runs; advances when the loss stops improving
+    (the constant stage also after ``constant_cycles``)."""
 
     constant_cycles: int = 5
     restart_cycles: int = 1  # constant cycles after a re-mesh reset
@@ -340,8 +351,10 @@ class MaterialSchedule:
             self.best, self.stale = loss, 0
         else:
             self.stale += 1
+        # constants end after constant_cycles, or earlier once they stop improving (a short
+        # run without re-meshing must still reach the textured stages); the others on patience
         limit = self.constant_cycles if self.stage == "constant" else None
-        if (limit is not None and self.cycle >= limit) or (limit is None and self.stale >= self.patience):
+        if (limit is not None and self.cycle >= limit) or self.stale >= self.patience:
             self.stage = self.STAGES[self.STAGES.index(self.stage) + 1]
             self.cycle, self.stale = 0, 0
             self.best = loss

@@ -113,6 +113,16 @@ def test_schedule_runs_constant_then_diffuse_then_specular():
     assert s.stage == "constant" and s.constant_cycles == s.restart_cycles
 
 
+def test_schedule_leaves_converged_constants_early():
+    # a short run without re-meshing: constants that stop improving hand over to the textures
+    s = stages.MaterialSchedule(constant_cycles=5, patience=1)
+    seen = []
+    for loss in [10, 8, 8, 6, 5, 5]:
+        seen.append(s.stage)
+        s.report(loss)
+    assert seen == ["constant"] * 3 + ["diffuse"] * 3 and s.stage == "specular"
+
+
 def test_run_cycle_walks_the_schedule():
     mesh, cams, lights, truth = scene(env=True)
     sky = procedural.sky(64)
@@ -155,3 +165,43 @@ def test_silhouette_band_is_left_out_of_the_fit():
     inner = constants([np.where((k > 0)[..., None], 5.0 * img, img) for k, img in zip(kept, images)])
     np.testing.assert_allclose(in_band, clean, atol=1e-6)
     assert np.abs(inner - clean).max() > 0.01  # (8 small steps)
+
+
+def test_robust_loss_is_squared_near_zero_and_linear_far_out():
+    import drjit as dr
+    import mitsuba as mi
+
+    d = mi.Float([0.001, -0.001, 1.0, -2.0])
+    np.testing.assert_allclose(np.array(stages.pixel_loss(d)), [1e-6, 1e-6, 1.0, 4.0], rtol=1e-6)
+    c = 0.02
+    robust = np.array(stages.pixel_loss(d, c))
+    np.testing.assert_allclose(robust[:2], 1e-6, rtol=2e-3)  # ~ d^2 for |d| << c
+    np.testing.assert_allclose(robust[2:], [2 * c * (1.0 - c), 2 * c * (2.0 - c)], rtol=1e-3)  # ~ 2 c |d|
+    assert dr.width(stages.pixel_loss(d, c)) == 4
+
+
+def test_robust_loss_resists_a_few_wrong_pixels():
+    # a few pixels far off (as wrong geometry shades them) pull the squared-error fit away;
+    # the robust fit stays closer to the fit on clean images
+    mesh, cams, lights, truth = scene()
+    cams, lights = cams[:2], lights[:2]
+    images, weights = render_truth(mesh, cams, lights, truth)
+    rng = np.random.default_rng(1)
+    spoiled = [np.where((rng.random(w.shape) < 0.05)[..., None] & (w > 0)[..., None], 3.0, img)
+               for img, w in zip(images, weights)]
+
+    def constants(targets, robust):
+        material = MeshColorMaterial(mesh, 1)
+        renderer = SceneRenderer(mesh, material.field, cams, lights, None, RenderSettings(spp=4, max_depth=2,
+                                                                                          integrator="prb"))
+        stages.fit_constants(renderer, targets, weights, material,
+                             stages.FitSettings(iterations=20, robust=robust, edge_erosion=0))
+        return material.values("albedo")
+
+    for robust in (0.0, 0.02):
+        clean = constants(images, robust)
+        if robust == 0.0:
+            shift_l2 = np.abs(constants(spoiled, robust) - clean).max()
+        else:
+            shift_robust = np.abs(constants(spoiled, robust) - clean).max()
+    assert shift_robust < 0.5 * shift_l2
