@@ -90,7 +90,7 @@ def render(args) -> Path:
           "--samples", args.samples, "--jitter", args.jitter, "--seed", args.seed], "render_orbit.py")
     stamp.write_text(json.dumps(wanted))
     print(f"  video: {args.frames} frames {args.size}, {args.samples} spp Cycles, rendered in "
-          f"{(time.perf_counter() - start) / 60:.1f} min")
+          f"{(time.perf_counter() - start) / 60:.1f} min", flush=True)
     return folder
 
 
@@ -163,7 +163,8 @@ def run_pipeline(args, orbit: Path) -> dict:
     sfm = next((e for e in events if e.get("event") == "sfm"), {})
     print(f"  capture-from-video: {sfm.get('registered')}/{sfm.get('total')} frames registered "
           f"(reprojection {sfm.get('reprojection_error_px', float('nan')):.2f} px, {sfm.get('method')}), "
-          f"{capture_s / 60:.1f} min")
+          f"{capture_s / 60:.1f} min", flush=True)
+    print_cameras(score(capture, None, orbit))  # before reconstructing: these need no mesh
     budget = max(1.0, args.minutes - capture_s / 60 - args.margin)
     extra = args.reconstruct_args.split()
     start = time.perf_counter()
@@ -181,17 +182,20 @@ def run_pipeline(args, orbit: Path) -> dict:
     return figures
 
 
-def print_figures(f: dict) -> None:
-    g, gc, env = f["geometry"], f["geometry_cameras"], f["env"]
-    cam_c, cam_r = f["camera_centre_error_pct"], f["camera_rotation_error_deg"]
+def print_cameras(f: dict) -> None:
+    cam_c, cam_r, env = f["camera_centre_error_pct"], f["camera_rotation_error_deg"], f["env"]
     print(f"  cameras: {f['registered']}/{f['video_frames']} registered; after the camera similarity centre error "
           f"max {cam_c['max']:.2f} % mean {cam_c['mean']:.2f} % of the orbit radius, rotation error max "
           f"{cam_r['max']:.2f} mean {cam_r['mean']:.2f} deg; scene Z {f['scene_tilt_deg']:.2f} deg from Blender's Z")
-    print(f"  geometry (ICP from the camera similarity): F1@0.01 {g['f1@0.01']:.1f}, Chamfer-L1 {g['chamfer_l1']:.5f} "
-          f"(camera similarity alone: F1@0.01 {gc['f1@0.01']:.1f}, Chamfer-L1 {gc['chamfer_l1']:.5f})")
     state = "estimated" if env["aligned"] else "NOT estimated (placeholder)"
     print(f"  environment rotation: stored {env['stored_deg']:.1f} deg ({state}), truth in the scene frame "
-          f"{env['expected_deg']:.1f} deg, error {env['error_deg']:.1f} deg")
+          f"{env['expected_deg']:.1f} deg, error {env['error_deg']:.1f} deg", flush=True)
+
+
+def print_figures(f: dict) -> None:
+    g, gc = f["geometry"], f["geometry_cameras"]
+    print(f"  geometry (ICP from the camera similarity): F1@0.01 {g['f1@0.01']:.1f}, Chamfer-L1 {g['chamfer_l1']:.5f} "
+          f"(camera similarity alone: F1@0.01 {gc['f1@0.01']:.1f}, Chamfer-L1 {gc['chamfer_l1']:.5f})")
     m = f["minutes"]
     load = ", ".join(f"{x:.1f}" for x in f["load_average"])
     print(f"  time: capture {m['capture']:.1f} + reconstruct {m['reconstruct']:.1f} = {m['total']:.1f} min "
