@@ -63,6 +63,25 @@ def test_glossy_object_keeps_the_specular_lobe():
     assert d.specular and d.measured["highlight_ratio"] > 1.5, d.reasons
 
 
+@pytest.mark.parametrize("specular", [0.25, 0.0])
+def test_specular_decision_on_a_rough_estimate(specular):
+    """Measured on a sphere standing in for the blob (wrong normals, as a carved start has),
+    the highlights of a glossy blob still count and a diffuse blob still has none: a wrong
+    diffuse-only decision costs accuracy and saves no time."""
+    blob = procedural.blob(3)
+    lo, hi = blob.bounds()
+    start = procedural.icosphere(3)
+    start.vertices = (lo + hi) / 2 + start.vertices * 0.75 * np.linalg.norm(hi - lo) / 2
+    cams = _orbit(blob)
+    lights = [layout.paper_lights(c, 5.0) for c in cams]
+    truth = SceneRenderer(blob, ConstantField([0.6, 0.6, 0.6], specular, 0.35), cams, lights,
+                          settings=RenderSettings(spp=64, max_depth=4), rgba=True)
+    targets = [truth.render_numpy(i) for i in range(len(cams))]
+    estimate = SceneRenderer(start, ConstantField([0.5, 0.5, 0.5], 0.2, 0.4), cams, lights, settings=RenderSettings(spp=16))
+    d = effects.decide(estimate, [t[..., :3] for t in targets], [t[..., 3] for t in targets], ["point"])
+    assert d.specular == (specular > 0), d.reasons
+
+
 def test_colour_bleeding_corner_keeps_multiple_bounces():
     corner, colours = _quads([([0, 0, 0], [1, 0, 0], [0, 1, 0], [0.8, 0.8, 0.8]),
                               ([0, 0, 0], [0, 1, 0], [0, 0, 1], [0.8, 0.1, 0.1]),
