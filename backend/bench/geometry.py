@@ -34,9 +34,9 @@ def add_arguments(parser):
     parser.add_argument("--minutes", type=float, default=10.0, help="time budget of each dragon run")
     parser.add_argument("--material", default="auto",
                         help="material given to the dragon runs: auto (estimated) or known (the synthetic one)")
-    parser.add_argument("--effects", default="specular",
-                        help="light-transport effects for the dragon runs (default: direct light with the specular "
-                             "lobe; 'auto' measures them, and picks shadow gradients that cost ~10x per step)")
+    parser.add_argument("--effects", default="auto",
+                        help="light-transport effects for the dragon runs (default: auto, what reconstruct does; "
+                             "'specular' is direct light only)")
     parser.add_argument("--data", type=Path, default=DRAGON, help="folder with dragon.obj and colmap_dragon.obj")
 
 
