@@ -13,6 +13,7 @@ import pytest
 from backend.bench import _pareto, calibrate, sweep
 from backend.bench._sweep_scenes import SCENES
 from backend.geometry.mesh import load_mesh
+from backend.optimize.presets import preset_for_budget
 
 
 @pytest.fixture(scope="module")
@@ -83,4 +84,4 @@ def test_calibration_file_from_rows(swept, tmp_path):
     path = tmp_path / "presets.json"
     path.write_text(json.dumps(doc))
     fastest = min(doc["presets"], key=lambda n: doc["presets"][n]["expected_minutes"])
-    assert calibrate.preset_for_budget(1e-3, path) == fastest
+    assert preset_for_budget(1e-3, path) == fastest
