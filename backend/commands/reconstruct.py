@@ -20,6 +20,16 @@ from ..optimize.presets import DEFAULT, PRESETS, calibrated, preset_for_budget
 INIT_HELP = "carve (visual hull; default with masks), sphere, box, spheres (sphere cloud), points (SfM + Poisson), or a mesh file"
 
 
+def _calibration_help() -> str:
+    """Each preset's calibrated time and F1 (backend/presets.json), for --help."""
+    entries = calibrated()
+    if not entries:
+        return "Not calibrated (python -m backend bench calibrate)."
+    parts = [f"{name} ~{e['expected_minutes']:.3g} min, F1@0.01 {100 * e.get('expected_f1', 0):.1f}"
+             for name, e in entries.items()]
+    return f"Calibrated on the dragon benchmark: {'; '.join(parts)} (backend/presets.json)."
+
+
 def add_arguments(parser):
     d = ReconstructConfig()
     parser.add_argument("capture", metavar="PATH", type=Path,
@@ -33,7 +43,7 @@ def add_arguments(parser):
     parser.add_argument("--out", required=True, type=Path, metavar="RUN", help="run folder")
     parser.add_argument("--preset", choices=sorted(PRESETS),
                         help=f"quality preset (default {DEFAULT}; with --time-budget, the most accurate preset whose "
-                             "calibrated time fits it, see backend/presets.json); the options below override it")
+                             f"calibrated time fits it); the options below override it. {_calibration_help()}")
     parser.add_argument("--init", default=None, help=INIT_HELP)
     parser.add_argument("--time-budget", type=float, metavar="MINUTES", help="wall-clock budget of the whole run: it stops then with the best mesh so far")
     parser.add_argument("--iterations", type=int, help="cap on optimisation steps over all levels")
