@@ -45,7 +45,8 @@ def add_arguments(parser):
                         help=f"quality preset (default {DEFAULT}; with --time-budget, the most accurate preset whose "
                              f"calibrated time fits it); the options below override it. {_calibration_help()}")
     parser.add_argument("--init", default=None, help=INIT_HELP)
-    parser.add_argument("--time-budget", type=float, metavar="MINUTES", help="wall-clock budget of the whole run: it stops then with the best mesh so far")
+    parser.add_argument("--time-budget", type=float, metavar="MINUTES",
+                        help="wall-clock budget of the whole run: it stops then with the best mesh so far")
     parser.add_argument("--iterations", type=int, help="cap on optimisation steps over all levels")
     parser.add_argument("--seed", type=int, default=d.seed)
     parser.add_argument("--resume", action="store_true", help="continue the run in RUN from its last snapshot")
