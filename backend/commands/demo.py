@@ -62,8 +62,8 @@ def run(args) -> int:
                  str(args.resolution), "--held-out", "4", "--overwrite"], "synth")
     else:
         print(f"[synth] reusing {capture}")
-    _follow(["reconstruct", str(capture), "--out", str(run_dir), "--time-budget", str(args.minutes),
-             "--overwrite"], "reconstruct")
+    _follow(["reconstruct", str(capture), "--out", str(run_dir), "--preset", "balanced",
+             "--time-budget", str(args.minutes), "--overwrite"], "reconstruct")
     from .. import fsio
     from .evaluate import evaluate, json_safe, table
 
