@@ -66,6 +66,9 @@ def add_arguments(parser):
     parser.add_argument("--level-iterations", type=int, help=f"most steps per level ({d.level_iterations})")
     parser.add_argument("--step", type=float,
                         help=f"largest vertex step per iteration, in mean edge lengths ({d.step})")
+    parser.add_argument("--smoothing", type=float, metavar="LAMBDA", dest="lambda_",
+                        help="Large Steps smoothing of the vertex steps (default: 2, or 20 when one constant "
+                             "material must explain a textured object; see the stiffness event)")
     parser.add_argument("--integrator", choices=["direct_projective", "prb_projective"], help=f"({d.integrator})")
     parser.add_argument("--max-depth", type=int, help=f"path depth for prb_projective ({d.max_depth})")
     parser.add_argument("--spp", type=int, help=f"samples per pixel per step ({d.spp})")
@@ -77,7 +80,8 @@ def add_arguments(parser):
 
 
 OVERRIDES = ("init", "material", "effects", "initial_faces", "iterations", "seed", "max_size", "coarse_size", "views_per_step",
-             "integrator", "max_depth", "spp", "remesh", "max_levels", "level_iterations", "step", "track_metrics")
+             "integrator", "max_depth", "spp", "remesh", "max_levels", "level_iterations", "step", "lambda_",
+             "track_metrics")
 
 
 def choose_preset(args) -> str:
@@ -90,9 +94,9 @@ def choose_preset(args) -> str:
 def config_from_args(args) -> ReconstructConfig:
     """Defaults, then the preset, then the options given."""
     for name in ("max_size", "coarse_size", "views_per_step", "initial_faces", "spp", "max_levels", "iterations",
-                 "time_budget", "max_depth", "level_iterations", "step"):
+                 "time_budget", "max_depth", "level_iterations", "step", "lambda_"):
         value = getattr(args, name)
-        flag = "--" + name.replace("_", "-")
+        flag = "--smoothing" if name == "lambda_" else "--" + name.replace("_", "-")
         require(value is None or value > 0, None, f"{flag} must be positive (got {value})", f"give {flag} a value above 0")
     values = dict(PRESETS[choose_preset(args)])
     values.update({k: getattr(args, k) for k in OVERRIDES if getattr(args, k) not in (None, False)})

@@ -30,14 +30,15 @@ class ReconstructConfig:
     validation_spp: int = 16
     # steps
     tone: str = "log"  # loss on log(1 + x / mean radiance) ("linear": the paper's plain MSE)
-    # Large Steps smoothing (I + lambda L) and the gradient cap. Measured on the paper-style
+    # Large Steps smoothing (I + lambda L) and the per-vertex gradient cap (percentile; 0: off).
+    # None: chosen per capture by backend.optimize.stiffness (soft 2 / 95, or stiff 20 / 99.5 when
+    # one constant material must absorb a textured appearance). Measured on the paper-style
     # dragon (32 views, 128 px, carve start, 1200 steps; point-to-point F1@0.01): lambda 20 / cap 99.5: 86.3,
-    # lambda 20 / 95: 88.3, 5 / 95: 92.9, 2 / 95: 94.8, 1 / 95: 95.9, 0.5 / 95: 95.0 (steps
-    # start to backtrack). A stiff system moves only the smoothest modes, so detail converges
-    # slowly; 2 keeps a margin against tangling on noisier captures.
-    lambda_: float = 2.0
+    # 20 / 95: 88.3, 5 / 95: 92.9, 2 / 95: 94.8, 1 / 95: 95.9, 0.5 / 95: 95.0 (steps start to
+    # backtrack). A stiff system moves only the smoothest modes, so detail converges slowly.
+    lambda_: float | None = None
     step: float = 0.1  # largest step per iteration, as a fraction of the mean edge length
-    clip: float = 95.0  # per-vertex gradient lengths are capped at this percentile (0: off)
+    clip: float | None = None
     material_warmup: int = 60  # material-only steps before the first geometry step (estimated material)
     material_lr: float = 0.03  # Adam step on material latents (logits)
     # convergence (see backend.optimize.schedule)

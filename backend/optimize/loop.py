@@ -33,8 +33,8 @@ from .progress import LockedEmitter, Progress
 from .run_folder import RunFolder, StopRequested
 from .schedule import Plateau, keeps_improving, level_size
 from .steps import Adam, VertexOptimizer, clip_outliers, finite
+from .stiffness import Stiffness, choose as choose_stiffness
 from .views import ViewSet, validation_views
-
 
 
 class Reconstruction:
@@ -62,6 +62,7 @@ class Reconstruction:
         self.appearance = Appearance(capture, config, emit)
         self.truth = self._truth()
         self.progress: Progress | None = None
+        self.stiffness: Stiffness | None = None
 
     # -- clocks and limits --------------------------------------------------------------------------
     def elapsed(self) -> float:
@@ -121,6 +122,7 @@ class Reconstruction:
         coarse = self.viewset.at(c.coarse_size)
         self.material = self.appearance.initial_material(self.mesh, coarse) or self.material
         self.appearance.decide(self.mesh, self.material, coarse, reason="initial mesh")
+        self._choose_stiffness(coarse)
         self.budget = FaceBudget(self.mesh.n_faces)
         self._timed("init", start)
         report = inspect(self.mesh)
@@ -144,7 +146,13 @@ class Reconstruction:
         self.timings, self.init_info = state["timings"], state["init"]
         self.before = state["seconds"]
         self.emit("stage", stage="resume", level=self.level, faces=self.mesh.n_faces)
-        self.appearance.decide(self.mesh, self.material, self.viewset.at(self.config.coarse_size), reason="resumed")
+        coarse = self.viewset.at(self.config.coarse_size)
+        self.appearance.decide(self.mesh, self.material, coarse, reason="resumed")
+        self._choose_stiffness(coarse)
+
+    def _choose_stiffness(self, views) -> None:
+        self.stiffness = choose_stiffness(self.config, views, spatially_varying=self.appearance.driver is not None)
+        self.emit("stiffness", **self.stiffness.event())
 
     # -- the schedule ------------------------------------------------------------------------------
     def _optimise(self) -> None:
@@ -201,7 +209,7 @@ class Reconstruction:
         objective = Objective(self.mesh, self.material, views, self._settings(), self.capture.environment,
                               tone=c.tone)
         lr0 = c.step * mean_edge_length(self.mesh)
-        opt = VertexOptimizer(self.mesh.vertices, self.mesh.faces, c.lambda_, lr0)
+        opt = VertexOptimizer(self.mesh.vertices, self.mesh.faces, self.stiffness.lambda_, lr0)
         material_opt = Adam(c.material_lr)
         val_ids = validation_views(len(views), c.validation_views)
         val_seed = seed_for(c.seed, 10_000_019, 0)
@@ -234,7 +242,7 @@ class Reconstruction:
                     self._skip("non-finite loss or gradient")
                     continue
                 if geometry:
-                    new_vertices = opt.step(clip_outliers(grad, c.clip))
+                    new_vertices = opt.step(clip_outliers(grad, self.stiffness.clip))
                     if not finite(new_vertices):
                         opt.set_vertices(vertices)
                         self._skip("non-finite vertex positions after a step")
@@ -379,6 +387,7 @@ class Reconstruction:
         metrics = self._metrics(self.mesh) if self.truth is not None else None
         report = {
             "capture": str(self.capture.root), "settings": dataclasses.asdict(self.config),
+            "stiffness": self.stiffness.event(),
             "init": self.init_info, "levels": self.levels,
             "result": {"faces": self.mesh.n_faces, "vertices": self.mesh.n_vertices,
                        "genus": inspect(self.mesh).genus, "iterations": self.iteration},

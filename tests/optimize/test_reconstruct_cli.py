@@ -74,7 +74,9 @@ def test_reconstruct_end_to_end(capture, tmp_path):
     assert [e["event"] for e in stdout] == [e["event"] for e in log]  # the same lines on stdout and on disk
     kinds = [e["event"] for e in log]
     assert kinds[:2] == ["start", "variant"] and kinds[-1] == "done"
-    assert {"stage", "progress", "snapshot"} <= set(kinds)
+    assert {"stage", "progress", "snapshot", "stiffness"} <= set(kinds)
+    stiffness = next(e for e in log if e["event"] == "stiffness")
+    assert stiffness["lambda"] == 2.0 and stiffness["chroma_spread"] < 0.05  # a uniform grey object
     progress = [e for e in log if e["event"] == "progress"]
     for e in progress:
         assert {"stage", "level", "iteration", "iterations", "loss", "faces", "seconds", "fraction", "eta_s"} <= set(e)
