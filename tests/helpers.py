@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 
 REPO = Path(__file__).resolve().parents[1]
-SHARED = REPO.parent / "shared" / "data"
+SHARED = Path(os.environ.get("SFT_SHARED_DATA", REPO.parent / "shared" / "data"))  # override for other checkouts
 
 
 def shared_data(*parts: str) -> Path:
