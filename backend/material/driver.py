@@ -1,17 +1,18 @@
-"""What the reconstruction loop needs to run materials, in four calls.
+"""What the reconstruction loop needs to run materials, in five calls.
 
     driver = MaterialDriver(capture, n_materials=1)         # material masks checked (InputError)
     material = driver.material(mesh, cameras, images, masks) # labels voted, neutral grey start
     ... after each geometry level, with the level's renderer and views:
     driver.cycle(renderer, images, masks, material, emit)    # one stage of the schedule
     driver.on_remesh(mesh, material, cameras)                # after a re-mesh (labels re-voted)
+    driver.finalise()                                        # geometry converged: last, longer stages
 
 ``driver.done`` tells when the material schedule has finished (the loss stopped improving
 in the last stage)."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -60,6 +61,12 @@ class MaterialDriver:
         result = run_cycle(self.schedule, renderer, images, masks, material, self.settings, emit)
         self.results.append(result)
         return result
+
+    def finalise(self, iterations_scale: int = 4) -> None:
+        """Geometry has converged: longer textured stages to the end (MaterialSchedule.finalise)."""
+        if not self.schedule.final:
+            self.schedule.finalise()
+            self.settings = replace(self.settings, iterations=self.settings.iterations * iterations_scale)
 
     def on_remesh(self, mesh: Mesh, material: MeshColorMaterial, cameras: list[Camera]) -> None:
         """Call after ``material.on_remesh(mesh)``: labels re-voted, the schedule restarts."""

@@ -339,6 +339,7 @@ class MaterialSchedule:
     light_fitted: bool = False
     best: float = math.inf
     stale: int = 0
+    final: bool = False  # the textures' last round on the converged geometry has begun
     history: list = field(default_factory=list)
 
     STAGES = ("constant", "diffuse", "specular", "done")
@@ -359,6 +360,16 @@ class MaterialSchedule:
             self.cycle, self.stale = 0, 0
             self.best = loss
         return self.stage
+
+    def finalise(self, patience: int = 2) -> None:
+        """Geometry has converged: the textured stages run once more on the final surface
+        (diffuse, then specular), each until ``patience`` cycles stop improving."""
+        if self.final:
+            return
+        self.final = True
+        if self.stage in ("specular", "done"):
+            self.stage = "diffuse"
+        self.cycle, self.stale, self.best, self.patience = 0, 0, math.inf, patience
 
     def on_remesh(self) -> None:
         """The material restarted from grey: a short constant stage, then textures again."""

@@ -81,6 +81,11 @@ class Appearance:
             self.decide(mesh, material, views, reason="materials became spatially varying")
         return {"stage": stage_before, "loss": result.loss, "seconds": round(time.perf_counter() - start, 3)}
 
+    def finalise(self) -> None:
+        """Geometry has converged: the material's last, longer stages follow."""
+        if self.driver is not None:
+            self.driver.finalise()
+
     def on_remesh(self, mesh, material, views) -> None:
         if self.driver is not None:
             self.driver.on_remesh(mesh, material, [v.camera for v in views])

@@ -185,6 +185,7 @@ class Reconstruction:
     def _finish_materials(self, most: int = 12) -> None:
         """Once geometry has converged: material stages until their schedule ends."""
         views = self.viewset.at(self.config.max_size)
+        self.appearance.finalise()
         for _ in range(most):
             if self._out_of_budget():
                 break

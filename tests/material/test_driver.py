@@ -64,6 +64,9 @@ def test_driver_labels_and_cycles(tmp_path):
     assert driver.schedule.stage == "constant" and material.n_faces == procedural.blob(2).n_faces
     report = driver.report()
     assert report["labels"]["materials"] == [1, 2] and report["stages"][0]["stage"] == "constant"
+    driver.finalise()
+    driver.finalise()  # once only
+    assert driver.settings.iterations == 80 and driver.schedule.final and driver.schedule.patience == 2
 
 
 def test_driver_refuses_bad_masks_before_any_work(tmp_path):

@@ -123,6 +123,22 @@ def test_schedule_leaves_converged_constants_early():
     assert seen == ["constant"] * 3 + ["diffuse"] * 3 and s.stage == "specular"
 
 
+def test_finalise_reopens_the_textures_once_with_more_patience():
+    s = stages.MaterialSchedule(constant_cycles=1, patience=1)
+    for loss in [10, 9, 9, 8, 8]:
+        s.report(loss)
+    assert s.stage == "done"
+    s.finalise()
+    seen = []
+    for loss in [7, 6.9, 6.5, 6.5, 6.5, 6.0, 6.0, 6.0]:
+        seen.append(s.stage)
+        s.report(loss)
+    # diffuse ends after two cycles without a 1 % gain, then specular likewise
+    assert seen == ["diffuse"] * 5 + ["specular"] * 3 and s.stage == "done"
+    s.finalise()
+    assert s.stage == "done"  # only once
+
+
 def test_run_cycle_walks_the_schedule():
     mesh, cams, lights, truth = scene(env=True)
     sky = procedural.sky(64)
