@@ -28,6 +28,7 @@ class RunState:
     message: str = ""  # error or cancel message, or the final summary
     warnings: list[str] = field(default_factory=list)
     effects: str = ""  # the light-transport effects being simulated, from the newest `effects` event
+    smoothing: str = ""  # the vertex steps' Large Steps smoothing, from the `stiffness` event
     done: dict = field(default_factory=dict)  # the `done` event
     started: float = field(default_factory=time.monotonic)
     _eta_s: float | None = None
@@ -61,6 +62,11 @@ class RunState:
                 self.loss = event["loss"]
         elif kind == "effects":
             self.effects = effects_summary(event.get("enabled") or {})
+        elif kind == "stiffness":
+            reason = str(event.get("reason", ""))
+            note = (" (given)" if "given" in reason else
+                    " (textured, one constant material)" if "constant material" in reason else "")
+            self.smoothing = f"λ {float(event.get('lambda') or 0):g}{note}"
         elif kind == "warning":
             self.warnings.append(str(event.get("message", "")))
         elif kind == "error":

@@ -26,6 +26,8 @@ def _draw_job(layout, job: jobs.Job | None, cancel: str | None = None) -> bool:
         col.label(text=state.headline())
         if state.effects:
             col.label(text=f"Simulating: {state.effects}", icon="LIGHT")
+        if state.smoothing:
+            col.label(text=f"Smoothing: {state.smoothing}", icon="MOD_SMOOTH")
         if state.status == progress.STOPPING:
             col.label(text="Stopping after the current step...", icon="PAUSE")
         elif cancel:

@@ -260,3 +260,6 @@ def test_effects_event_is_summarised_for_the_panel():
     assert state.effects == "direct light, specular"
     state.update({"event": "effects", "enabled": {"max_depth": 4, "shadows": True, "specular": False}})
     assert state.effects == "3 bounces, shadows, diffuse only"
+    state.update({"event": "stiffness", "lambda": 20.0, "clip": 99.5, "chroma_spread": 0.15,
+                  "reason": "a constant material cannot explain the frames' colour variation"})
+    assert state.smoothing == "λ 20 (textured, one constant material)"
