@@ -9,13 +9,14 @@ staged`` runs in a child process within a wall-clock budget (``--minutes`` for t
 ``--rerun``). Its wall and CPU seconds and the load average during the run are recorded.
 
 Rows per mesh: ``initialisation`` (the carved mesh with the neutral grey material the run
-starts from) and ``reconstruction`` (``result.ply`` with the final material). Columns:
+starts from) and ``reconstruction`` (the run's final mesh rendered with its mesh colors, as
+the run fitted them; geometry scores use ``result.ply``, the same mesh). Columns:
 Chamfer-L1 and F1@0.01 (100k samples, fractions of the truth's longest side), PSNR / SSIM
 of the full render and of its diffuse-only and specular-only passes (backend.material.passes)
 at the held-out views under their point lights, against the truth rendered the same way;
 for the reconstruction also albedo RMSE, PSNR under the relit sky (never seen by the run),
-and the full PSNR its geometry reaches with the true material carried over (a geometry-only
-bound: what a perfect material fit would score on that mesh).
+and the full PSNR its geometry reaches with the true material sampled into the same mesh
+colors (a geometry-only bound: what a perfect material fit would score on that mesh).
 Writes ``OUT/table1.json`` and prints the table."""
 
 from __future__ import annotations
@@ -158,7 +159,10 @@ def evaluate(name: str, capture, run: Path, spec) -> dict:
     from ..capture.format import load_capture
     from ..capture.images import read_mask, read_rgba
     from ..geometry.mesh import load_mesh
+    from ..geometry.mesh import Mesh
+    from ..material.model import MeshColorMaterial
     from ..material.passes import component_renders
+    from ..optimize.run_folder import RunFolder
     from ..metrics.geometry import corresponding_albedo, geometry_metrics
     from ..metrics.image import albedo_rmse, image_metrics
     from ..render.fields import VertexField
@@ -180,9 +184,11 @@ def evaluate(name: str, capture, run: Path, spec) -> dict:
     reference = component_renders(truth, truth_field, held.frames, **kw)
     relit_ref = component_renders(truth, truth_field, relit.frames, relit.environment, components=("full",),
                                   env_pixels=relit_pixels, seed=500, **kw)["full"]
+    state, material_file = RunFolder(run).load_state()
+    fitted = MeshColorMaterial.load(material_file)  # rendered on the run's own mesh, as it was fitted
     rows = {}
-    for row, mesh, field in (("initialisation", init, display_field(init)), ("reconstruction", display,
-                                                                              display_field(display))):
+    for row, mesh, field in (("initialisation", init, display_field(init)),
+                             ("reconstruction", Mesh(state["vertices"], state["faces"]), fitted.field)):
         geo = geometry_metrics(mesh if row == "initialisation" else result, truth)
         rendered = component_renders(mesh, field, held.frames, **kw)
         relit_img = component_renders(mesh, field, relit.frames, relit.environment, components=("full",),
@@ -194,8 +200,8 @@ def evaluate(name: str, capture, run: Path, spec) -> dict:
         if row == "reconstruction":
             pred, gt = corresponding_albedo(display, truth)
             entry["albedo_rmse"] = round(albedo_rmse(pred, gt), 4)
-            oracle = component_renders(display, transferred_truth(display, truth), held.frames, components=("full",),
-                                       **kw)["full"]
+            oracle = component_renders(mesh, truth_as_mesh_colors(mesh, fitted, truth).field, held.frames,
+                                       components=("full",), **kw)["full"]
             entry["true_material_psnr"] = round(image_metrics(oracle, reference["full"], masks)["psnr"], 3)
         rows[row] = entry
     return rows
@@ -214,22 +220,26 @@ def _initial_mesh(capture, run: Path, settings: dict):
     return mesh
 
 
-def transferred_truth(mesh, truth):
-    """The truth's material carried to ``mesh``'s vertices from the closest truth surface points:
-    what the reconstructed geometry scores with a perfect material (a geometry-only bound)."""
+def truth_as_mesh_colors(mesh, fitted, truth):
+    """A copy of the ``fitted`` mesh-colors material with every channel set to the truth's
+    material at the samples' closest truth surface points: what the reconstructed geometry
+    scores with a perfect material of the same resolution (a geometry-only bound)."""
+    import tempfile
+
+    from ..material.model import MeshColorMaterial
     from ..material.transfer import locate
-    from ..render.fields import VertexField
 
-    face, bary, _ = locate(mesh.vertices, truth.vertices, truth.faces, exhaustive=False)
+    with tempfile.TemporaryDirectory() as tmp:
+        fitted.save(Path(tmp) / "m.npz")
+        oracle = MeshColorMaterial.load(Path(tmp) / "m.npz")
+    face, bary, _ = locate(oracle.layout.sample_positions(mesh.vertices), truth.vertices, truth.faces,
+                           exhaustive=False)
     corners = truth.faces[face]
-
-    def at(values):
-        values = np.asarray(values, np.float64)
-        w = bary.reshape(bary.shape + (1,) * (values.ndim - 1))
-        return (values[corners] * w).sum(1)
-
-    return VertexField(mesh.faces, at(truth.vertex_colors), at(truth.attributes["specular"]),
-                       at(truth.attributes["roughness"]))
+    for name, values in (("albedo", truth.vertex_colors), ("specular", truth.attributes["specular"]),
+                         ("roughness", truth.attributes["roughness"])):
+        values = np.asarray(values, np.float64).reshape(len(truth.vertices), -1)
+        oracle.set_values(name, (values[corners] * bary[..., None]).sum(1), "colors")
+    return oracle
 
 
 def format_table(results: dict) -> str:
