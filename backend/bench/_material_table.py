@@ -32,8 +32,10 @@ from pathlib import Path
 
 import numpy as np
 
+from ._data import SHARED_DATA
+
 REPO = Path(__file__).resolve().parents[2]
-MESHES_DIR = REPO.parent / "shared" / "data" / "meshes"
+MESHES_DIR = SHARED_DATA / "meshes"
 MESHES = {  # name: (file, up axis)
     "dragon": ("shapefromtracing/dragon.obj", "y"),
     "armadillo": ("stanford/armadillo_86k.obj", "y"),

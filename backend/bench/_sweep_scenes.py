@@ -19,9 +19,10 @@ import numpy as np
 
 from .. import fsio
 from ..geometry.mesh import Mesh
+from ._data import SHARED_DATA
 
 REPO = Path(__file__).resolve().parents[2]
-SHARED = REPO.parent / "shared" / "data"
+SHARED = SHARED_DATA
 DRAGON = SHARED / "meshes" / "shapefromtracing" / "dragon.obj"  # Y up (standing along +Y)
 STUDIO = SHARED / "envmaps" / "studio_small_03_1k.hdr"
 CORNER_COLOURS = {"floor": [0.75, 0.75, 0.75], "x": [0.75, 0.08, 0.06], "y": [0.08, 0.12, 0.75]}

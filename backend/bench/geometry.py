@@ -23,8 +23,10 @@ import sys
 import time
 from pathlib import Path
 
+from ._data import SHARED_DATA
+
 PARTS = ("dragon", "colmap", "divot", "genus", "memory")
-DRAGON = Path(__file__).resolve().parents[3] / "shared" / "data" / "meshes" / "shapefromtracing"
+DRAGON = SHARED_DATA / "meshes" / "shapefromtracing"
 DRAGON_MATERIAL = ("0.6,0.6,0.6", 0.3, 0.3)
 
 

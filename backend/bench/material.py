@@ -20,9 +20,10 @@ import numpy as np
 
 from .. import fsio, variant
 from ..events import Emitter
+from ._data import SHARED_DATA
 
 REPO = Path(__file__).resolve().parents[2]
-DRAGON = REPO.parent / "shared" / "data" / "meshes" / "shapefromtracing" / "dragon.obj"
+DRAGON = SHARED_DATA / "meshes" / "shapefromtracing" / "dragon.obj"
 
 
 @dataclass

@@ -33,8 +33,10 @@ import sys
 import time
 from pathlib import Path
 
+from ._data import SHARED_DATA
+
 ROOT = Path(__file__).resolve().parents[2]
-SHARED = ROOT.parent / "shared" / "data"
+SHARED = SHARED_DATA
 RENDER_SETTINGS = ("mesh", "up", "env", "env_rotation", "frames", "size", "samples", "jitter", "seed")
 
 

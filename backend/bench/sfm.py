@@ -18,8 +18,10 @@ from pathlib import Path
 
 import numpy as np
 
+from ._data import SHARED_DATA
+
 ROOT = Path(__file__).resolve().parents[2]
-SHARED = ROOT.parent / "shared" / "data" / "captures"
+SHARED = SHARED_DATA / "captures"
 CAPTURES = {"dino": SHARED / "middlebury_dinoSparseRing", "fox": SHARED / "fox_instant_ngp"}
 OPENCV_TO_OPENGL = np.diag([1.0, -1.0, -1.0])
 
