@@ -223,17 +223,13 @@ def _initial_mesh(capture, run: Path, settings: dict):
 
 
 def truth_as_mesh_colors(mesh, fitted, truth):
-    """A copy of the ``fitted`` mesh-colors material with every channel set to the truth's
+    """A mesh-colors material laid out like ``fitted`` with every channel set to the truth's
     material at the samples' closest truth surface points: what the reconstructed geometry
     scores with a perfect material of the same resolution (a geometry-only bound)."""
-    import tempfile
-
     from ..material.model import MeshColorMaterial
     from ..material.transfer import locate
 
-    with tempfile.TemporaryDirectory() as tmp:
-        fitted.save(Path(tmp) / "m.npz")
-        oracle = MeshColorMaterial.load(Path(tmp) / "m.npz")
+    oracle = MeshColorMaterial(mesh, fitted.resolution, fitted.labels, fitted.n_materials)
     face, bary, _ = locate(oracle.layout.sample_positions(mesh.vertices), truth.vertices, truth.faces,
                            exhaustive=False)
     corners = truth.faces[face]

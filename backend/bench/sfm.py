@@ -2,10 +2,10 @@
 
 Each capture's frames go through the same SfM the video path uses (``backend.video.sfm``,
 pycolmap on the CPU, frames in file order); the registered cameras are aligned to the given
-ones by a similarity fitted to their centres (Umeyama), then compared per camera: centre
-distance as a share of the ring radius (the mean distance of the given centres from their
-centroid) and rotation angle. The dino's poses are its calibration; the fox's are the COLMAP
-poses its ``transforms.json`` ships with.
+ones by a similarity fitted to their centres (``metrics.geometry.align_similarity``), then
+compared per camera: centre distance as a share of the ring radius (the mean distance of the
+given centres from their centroid) and rotation angle. The dino's poses are its calibration;
+the fox's are the COLMAP poses its ``transforms.json`` ships with.
 
 Goal (issue #6): rotation error < 2 degrees and centre error < 2 % of the ring radius."""
 
@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..metrics.geometry import align_similarity
 from ._data import SHARED_DATA
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -29,16 +30,6 @@ OPENCV_TO_OPENGL = np.diag([1.0, -1.0, -1.0])
 def add_arguments(parser) -> None:
     parser.add_argument("--captures", default="dino,fox", help="comma-separated: dino, fox (default: %(default)s)")
     parser.add_argument("--out", type=Path, help="write the figures here as JSON")
-
-
-def similarity(src: np.ndarray, dst: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
-    """(s, R, t) minimising |dst - (s R src + t)|^2 (Umeyama)."""
-    ms, md = src.mean(0), dst.mean(0)
-    u, d, vt = np.linalg.svd((dst - md).T @ (src - ms) / len(src))
-    e = np.diag([1.0, 1.0, np.sign(np.linalg.det(u @ vt))])
-    R = u @ e @ vt
-    s = float(np.trace(np.diag(d) @ e) / ((src - ms) ** 2).sum(1).mean())
-    return s, R, md - s * R @ ms
 
 
 def compare(poses: dict[str, np.ndarray], truth: dict[str, np.ndarray]) -> dict:
@@ -53,7 +44,9 @@ def compare(poses: dict[str, np.ndarray], truth: dict[str, np.ndarray]) -> dict:
         ours_c2w.append(c2w)
     ours = np.array([m[:3, 3] for m in ours_c2w])
     theirs = np.array([truth[n][:3, 3] for n in names])
-    s, R, t = similarity(ours, theirs)
+    m = align_similarity(ours, theirs)
+    s = float(np.linalg.norm(m[:3, 0]))
+    R, t = m[:3, :3] / s, m[:3, 3]
     radius = np.linalg.norm(theirs - theirs.mean(0), axis=1).mean()
     centre = np.linalg.norm(s * ours @ R.T + t - theirs, axis=1) / radius
     rotation = []
