@@ -12,10 +12,12 @@ intrinsics in the input frames' pixels (COLMAP's corner-origin convention, like 
 
 The principal point is held at the frame centre: a narrow lens cannot observe it (it trades
 with the cameras' rotations; freeing it in the final adjustment sends it 200 px off on the
-Middlebury dino and the ring with it). Where the true one is far from the centre (the
-dino's is 40 px above it at 640x480, a cropped sensor), the self-calibrated ring bends by a
-few percent of its radius at its weakly matched frames: adjusting the same matches with
-the calibrated intrinsics held stays within 0.8 % of the calibration."""
+Middlebury dino and the ring with it). The dino's ring (16 views, 11-degree field of view,
+tracks of 2.7 views on average) leaves a flat valley in the reprojection error: bundle
+adjustment of its matches with the calibrated intrinsics held stays within 0.7 % of the
+ring radius when started from the calibrated poses, and 3.5 % off at the weakest link when
+started from ours, at the same mean error (0.99 feature pixels). So known intrinsics and
+further rounds of re-triangulation and adjustment (both measured) leave its shape as it is."""
 
 from __future__ import annotations
 
