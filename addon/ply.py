@@ -1,7 +1,8 @@
 """A small reader for the backend's display meshes (bpy-free, numpy only).
 
 Binary little-endian PLY with scalar vertex properties (``x y z``, optional ``red green
-blue`` linear colours, any further floats such as ``specular`` and ``roughness``) and
+blue`` linear colours and ``nx ny nz`` shading normals, any further floats such as
+``specular`` and ``roughness``) and
 triangles as counted index lists; see docs/protocol.md."""
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ from .errors import AddonInputError, require
 _TYPES = {"char": "i1", "uchar": "u1", "int8": "i1", "uint8": "u1", "short": "i2", "ushort": "u2",
           "int16": "i2", "uint16": "u2", "int": "i4", "uint": "u4", "int32": "i4", "uint32": "u4",
           "float": "f4", "float32": "f4", "double": "f8", "float64": "f8"}
+NORMALS = ("nx", "ny", "nz")
 
 
 @dataclass
@@ -23,6 +25,7 @@ class DisplayMesh:
     vertices: np.ndarray  # (V, 3) float32
     faces: np.ndarray  # (F, 3) int32
     colors: np.ndarray | None = None  # (V, 3) float32 linear
+    normals: np.ndarray | None = None  # (V, 3) float32 unit shading normals
     attributes: dict[str, np.ndarray] = field(default_factory=dict)  # per-vertex float32
 
 
@@ -90,7 +93,9 @@ def read_display_mesh(path: str | Path) -> DisplayMesh:
     if all(c in names for c in ("red", "green", "blue")):
         rgb = np.stack([vertex[c] for c in ("red", "green", "blue")], -1).astype(np.float32)
         mesh.colors = rgb / 255.0 if vertex["red"].dtype == np.uint8 else rgb
+    if all(c in names for c in NORMALS):
+        mesh.normals = np.stack([vertex[c] for c in NORMALS], -1).astype(np.float32)
     for n in names:
-        if n not in ("x", "y", "z", "red", "green", "blue", "alpha"):
+        if n not in ("x", "y", "z", "red", "green", "blue", "alpha", *NORMALS):
             mesh.attributes[n] = np.asarray(vertex[n], dtype=np.float32)
     return mesh

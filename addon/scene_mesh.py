@@ -1,7 +1,8 @@
 """Writing display meshes into the "Reconstruction" object with ``foreach_set``.
 
 Colours are a point-domain colour attribute ``albedo`` (linear); ``specular`` and
-``roughness`` are float point attributes. The material reads them as the backend's BSDF:
+``roughness`` are float point attributes; shading normals, when the snapshot has them, are
+Blender's point-domain ``custom_normal`` attribute (free normals). The material reads them as the backend's BSDF:
 albedo / pi plus specular * D G / (4 cos cos) with GGX alpha = roughness^2, which is a
 Diffuse BSDF added to a Glossy BSDF (GGX, no Fresnel) in Cycles."""
 
@@ -13,6 +14,7 @@ from .ply import DisplayMesh
 OBJECT_NAME = "Reconstruction"
 MATERIAL_NAME = "SfT Reconstruction"
 COLOR_ATTRIBUTE = "albedo"
+NORMAL_ATTRIBUTE = "custom_normal"
 
 
 def reconstruction_material() -> bpy.types.Material:
@@ -101,4 +103,9 @@ def apply_display_mesh(obj: bpy.types.Object, dm: DisplayMesh) -> None:
         mesh.color_attributes.render_color_index = mesh.color_attributes.find(COLOR_ATTRIBUTE)
     for name, values in dm.attributes.items():
         _point_attribute(mesh, name, "FLOAT").data.foreach_set("value", np.ascontiguousarray(values, np.float32))
+    if dm.normals is not None:
+        normals = _point_attribute(mesh, NORMAL_ATTRIBUTE, "FLOAT_VECTOR")
+        normals.data.foreach_set("vector", np.ascontiguousarray(dm.normals, np.float32).ravel())
+    elif mesh.attributes.get(NORMAL_ATTRIBUTE) is not None:  # Blender's own normals again
+        mesh.attributes.remove(mesh.attributes[NORMAL_ATTRIBUTE])
     mesh.update(calc_edges=topology_changed)

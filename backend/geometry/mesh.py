@@ -14,6 +14,9 @@ from .. import fsio
 from ..errors import InputError
 
 
+NORMAL_ATTRIBUTES = ("nx", "ny", "nz")  # optional shading normals among the attributes (PLY's names)
+
+
 @dataclass
 class Mesh:
     vertices: np.ndarray  # (V, 3) float64
@@ -48,12 +51,37 @@ class Mesh:
     def face_areas(self) -> np.ndarray:
         return 0.5 * np.linalg.norm(self.face_normals(normalize=False), axis=1)
 
+    def vertex_normals(self) -> np.ndarray:
+        """Unit vertex normals, the face normals weighted by the corner angles (as Mitsuba
+        computes the normals it shades with)."""
+        n = np.zeros_like(self.vertices)
+        fn = self.face_normals()
+        corners = self.vertices[self.faces]
+        for k in range(3):
+            a = corners[:, (k + 1) % 3] - corners[:, k]
+            b = corners[:, (k + 2) % 3] - corners[:, k]
+            cos = (a * b).sum(1) / np.maximum(np.linalg.norm(a, axis=1) * np.linalg.norm(b, axis=1), 1e-30)
+            np.add.at(n, self.faces[:, k], fn * np.arccos(np.clip(cos, -1.0, 1.0))[:, None])
+        return n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-30)
+
+    @property
+    def shading_normals(self) -> np.ndarray | None:
+        """The (V, 3) normals carried as attributes nx, ny, nz, or None."""
+        if not all(k in self.attributes for k in NORMAL_ATTRIBUTES):
+            return None
+        return np.stack([self.attributes[k] for k in NORMAL_ATTRIBUTES], -1)
+
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
         return self.vertices.min(0), self.vertices.max(0)
 
     def transformed(self, matrix: np.ndarray) -> "Mesh":
         out = self.copy()
         out.vertices = self.vertices @ matrix[:3, :3].T + matrix[:3, 3]
+        normals = self.shading_normals
+        if normals is not None:
+            normals = normals @ np.linalg.inv(matrix[:3, :3])  # the inverse transpose carries normals
+            normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-30)
+            out.attributes.update(zip(NORMAL_ATTRIBUTES, normals.T.astype(np.float32)))
         return out
 
 

@@ -85,14 +85,6 @@ def sample_bilinear(image: np.ndarray, uv: np.ndarray) -> np.ndarray:
             + (1 - fx) * fy * px(y0 + 1, x0) + fx * fy * px(y0 + 1, x0 + 1))
 
 
-def vertex_normals(mesh: Mesh) -> np.ndarray:
-    n = np.zeros_like(mesh.vertices)
-    fn = mesh.face_normals(normalize=False)
-    for k in range(3):
-        np.add.at(n, mesh.faces[:, k], fn)
-    return n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-30)
-
-
 def _png(array: np.ndarray) -> bytes:
     from PIL import Image
 
@@ -105,7 +97,7 @@ def glb_bytes(mesh: Mesh, material: MeshColorMaterial, name: str = "reconstructi
     """A binary glTF 2.0 file: one mesh, one material with baked textures."""
     atlas = bake_atlas(mesh, material)
     positions = (mesh.vertices[mesh.faces].reshape(-1, 3) @ Z_UP_TO_Y_UP.T).astype(np.float32)
-    normals = (vertex_normals(mesh)[mesh.faces].reshape(-1, 3) @ Z_UP_TO_Y_UP.T).astype(np.float32)
+    normals = (mesh.vertex_normals()[mesh.faces].reshape(-1, 3) @ Z_UP_TO_Y_UP.T).astype(np.float32)
     texcoords = atlas.uv.reshape(-1, 2).astype(np.float32)
     indices = np.arange(3 * mesh.n_faces, dtype=np.uint32)
     ones = np.ones_like(atlas.roughness)

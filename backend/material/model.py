@@ -22,7 +22,7 @@ import mitsuba as mi
 import numpy as np
 
 from .. import fsio
-from ..geometry.mesh import Mesh
+from ..geometry.mesh import NORMAL_ATTRIBUTES, Mesh
 from .field import MeshColorsField, squash_np, unsquash_np
 from .meshcolors import MeshColorLayout, local_sub_triangles
 from .transfer import locate, project_onto_faces
@@ -251,7 +251,9 @@ class MeshColorMaterial:
     # -- display ------------------------------------------------------------------------------
     def display(self, mesh: Mesh) -> Mesh:
         """The snapshot mesh: each face split r x r so vertices sit on the mesh-color samples,
-        with vertex_colors = albedo and attributes specular, roughness (docs/protocol.md).
+        with vertex_colors = albedo and attributes specular, roughness and nx, ny, nz: the
+        base mesh's vertex normals interpolated (Phong), so the flat split faces shade as the
+        smooth surface that was fitted (docs/protocol.md).
 
         Vertices are shared where the material is continuous and split where it is not
         (material-label boundaries of constant channels; every face at r = 0)."""
@@ -276,10 +278,14 @@ class MeshColorMaterial:
         tri = mesh.vertices[mesh.faces[site_face]]
         b1, b2 = site[:, 0:1], site[:, 1:2]
         vertices = (1 - b1 - b2) * tri[:, 0] + b1 * tri[:, 1] + b2 * tri[:, 2]
+        corner_normals = mesh.vertex_normals()[mesh.faces[site_face]]
+        normals = (1 - b1 - b2) * corner_normals[:, 0] + b1 * corner_normals[:, 1] + b2 * corner_normals[:, 2]
+        normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-30)
         vals = self.evaluate(site_face, value_site[:, 0], value_site[:, 1])
         return Mesh(vertices, faces, vals["albedo"].astype(np.float32),
                     {"specular": vals["specular"][:, 0].astype(np.float32),
-                     "roughness": vals["roughness"][:, 0].astype(np.float32)})
+                     "roughness": vals["roughness"][:, 0].astype(np.float32),
+                     **dict(zip(NORMAL_ATTRIBUTES, normals.T.astype(np.float32)))})
 
     # -- persistence ------------------------------------------------------------------------------
     def save(self, path: str | Path) -> None:

@@ -101,6 +101,10 @@ def mitsuba_mesh(mesh: Mesh, bsdf, name: str = "object") -> mi.Mesh:
     params["vertex_positions"] = mi.Float(mesh.vertices.astype(np.float32).ravel())
     params["faces"] = mi.UInt32(mesh.faces.astype(np.uint32).ravel())
     params.update()
+    normals = mesh.shading_normals
+    if normals is not None:  # a display mesh's own (Phong) normals, not the recomputed ones
+        params["vertex_normals"] = mi.Float(np.asarray(normals, np.float32).ravel())
+        params.update()
     return m
 
 

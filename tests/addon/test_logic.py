@@ -25,7 +25,9 @@ def test_display_mesh_roundtrip_with_backend_writer(tmp_path):
     f = rng.integers(0, 50, size=(80, 3))
     cols = rng.random((50, 3)).astype(np.float32)
     spec, rough = rng.random(50).astype(np.float32), rng.random(50).astype(np.float32)
-    save_mesh(tmp_path / "m.ply", Mesh(v, f, cols, {"specular": spec, "roughness": rough}))
+    normals = rng.normal(size=(50, 3)).astype(np.float32)
+    save_mesh(tmp_path / "m.ply", Mesh(v, f, cols, {"specular": spec, "roughness": rough,
+                                                    **dict(zip(("nx", "ny", "nz"), normals.T))}))
     dm = read_display_mesh(tmp_path / "m.ply")
     assert dm.vertices.dtype == np.float32 and dm.faces.dtype == np.int32
     np.testing.assert_allclose(dm.vertices, v.astype(np.float32))
@@ -33,6 +35,8 @@ def test_display_mesh_roundtrip_with_backend_writer(tmp_path):
     np.testing.assert_array_equal(dm.colors, cols)
     np.testing.assert_array_equal(dm.attributes["specular"], spec)
     np.testing.assert_array_equal(dm.attributes["roughness"], rough)
+    np.testing.assert_array_equal(dm.normals, normals)
+    assert set(dm.attributes) == {"specular", "roughness"}
 
 
 def test_display_mesh_rejects_bad_files(tmp_path):

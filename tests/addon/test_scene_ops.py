@@ -123,15 +123,21 @@ def test_reconstruct_refuses_bad_input(context, tmp_path):
 
 # --- streaming -------------------------------------------------------------------------
 
-def _grid_mesh(n: int, z: float = 0.0, seed: int = 0) -> Mesh:
-    """An n x n vertex grid: 2 (n-1)^2 triangles, random colours and material values."""
+def _grid_mesh(n: int, z: float = 0.0, seed: int = 0, normals: bool = True) -> Mesh:
+    """An n x n vertex grid: 2 (n-1)^2 triangles, random colours, material values and
+    (tilted, unit) shading normals."""
     rng = np.random.default_rng(seed)
     g = np.stack(np.meshgrid(np.linspace(0, 1, n), np.linspace(0, 1, n)), -1).reshape(-1, 2)
     i = np.arange(n * n).reshape(n, n)
     a, b, c, d = i[:-1, :-1].ravel(), i[:-1, 1:].ravel(), i[1:, 1:].ravel(), i[1:, :-1].ravel()
     faces = np.concatenate([np.stack([a, b, c], -1), np.stack([a, c, d], -1)])
-    return Mesh(np.c_[g, np.full(len(g), z)], faces, rng.random((n * n, 3)).astype(np.float32),
-                {"specular": rng.random(n * n).astype(np.float32), "roughness": rng.random(n * n).astype(np.float32)})
+    attributes = {"specular": rng.random(n * n).astype(np.float32), "roughness": rng.random(n * n).astype(np.float32)}
+    if normals:
+        tilt = np.c_[0.3 * (g - 0.5), np.ones(len(g))]
+        tilt /= np.linalg.norm(tilt, axis=1, keepdims=True)
+        attributes.update(nx=tilt[:, 0].astype(np.float32), ny=tilt[:, 1].astype(np.float32),
+                          nz=tilt[:, 2].astype(np.float32))
+    return Mesh(np.c_[g, np.full(len(g), z)], faces, rng.random((n * n, 3)).astype(np.float32), attributes)
 
 
 def _write_snapshot(run, step: int, mesh: Mesh) -> None:
@@ -154,7 +160,7 @@ def _read_back(obj):
 def test_100k_face_update_costs_under_50ms(context, addon, tmp_path):
     """Reading a 100k-face snapshot and writing it into the object, on the main thread."""
     run = tmp_path / "run"
-    meshes = [_grid_mesh(225, z=0.01 * k, seed=k) for k in range(4)]
+    meshes = [_grid_mesh(225, z=0.01 * k, seed=k, normals=k != 3) for k in range(4)]
     assert meshes[0].n_faces > 100_000
     timings = {"rebuild": [], "same topology": []}
     for k, mesh in enumerate(meshes):
@@ -172,6 +178,10 @@ def test_100k_face_update_costs_under_50ms(context, addon, tmp_path):
         corners = np.empty(mesh.n_faces * 3, np.int32)
         bpy.data.objects["Reconstruction"].data.loops.foreach_get("vertex_index", corners)
         np.testing.assert_array_equal(corners, mesh.faces.ravel())
+        shown = np.empty(mesh.n_faces * 9, np.float32)  # what the viewport and Cycles shade with
+        bpy.data.objects["Reconstruction"].data.corner_normals.foreach_get("vector", shown)
+        normals = mesh.shading_normals if mesh.shading_normals is not None else np.tile([0, 0, 1.0], (mesh.n_vertices, 1))
+        np.testing.assert_allclose(shown.reshape(-1, 3), normals[mesh.faces.ravel()], atol=1e-3)
     print({k: [f"{1000 * t:.1f} ms" for t in v] for k, v in timings.items()})
     assert max(timings["rebuild"]) < 0.05 and max(timings["same topology"]) < 0.05
     obj = bpy.data.objects["Reconstruction"]

@@ -129,3 +129,17 @@ def test_face_budget_is_honoured_and_grows():
     assert exact and out.n_faces == 1280 and small.limit == 5000
     assert small.next_target(1000) == 4000 and small.limit == 5000
     assert small.next_target(2000) == 5000 and small.limit == 5500
+
+
+def test_vertex_normals_and_shading_normals_follow_a_transform():
+    sphere = icosphere(3)
+    n = sphere.vertex_normals()
+    assert np.all((n * sphere.vertices).sum(1) / np.linalg.norm(sphere.vertices, axis=1) > 0.999)  # radial
+    sphere.attributes.update(nx=n[:, 0], ny=n[:, 1], nz=n[:, 2])
+    m = np.diag([2.0, 1.0, 1.0, 1.0])  # stretched along x: normals follow the inverse transpose
+    m[:3, 3] = [0.5, 0.0, -1.0]
+    ellipsoid = sphere.transformed(m)
+    expected = n * [0.5, 1.0, 1.0]
+    expected /= np.linalg.norm(expected, axis=1, keepdims=True)
+    np.testing.assert_allclose(ellipsoid.shading_normals, expected, atol=1e-6)
+    np.testing.assert_allclose(sphere.shading_normals, n, atol=1e-7)  # the original is untouched

@@ -37,7 +37,8 @@ def test_display_mesh_sits_on_the_samples(r, tmp_path):
     save_mesh(tmp_path / "snap.ply", d)
     back = load_mesh(tmp_path / "snap.ply")
     assert np.allclose(back.vertex_colors, d.vertex_colors)
-    assert set(back.attributes) == {"specular", "roughness"}
+    assert set(back.attributes) == {"specular", "roughness", "nx", "ny", "nz"}
+    np.testing.assert_array_equal(back.shading_normals, d.shading_normals)
 
 
 def test_display_splits_vertices_at_material_boundaries():
@@ -140,3 +141,39 @@ def test_loop_interface_accepts_numpy_latents():
     assert all(m.parameters()[n] is objects[n] for n in objects)  # updated in place
     with pytest.raises(ValueError):
         m.load_parameters({"albedo": saved["albedo"][:-3]})
+
+
+def test_display_mesh_shades_like_the_fitted_surface():
+    """The display mesh's split faces are flat; its Phong normals make it render like the
+    smooth mesh it was made from (same mesh colors), which its facet normals do not."""
+    from backend.metrics.image import psnr
+    from backend.render.scene import RenderSettings, SceneRenderer
+    from backend.render.views import display_field
+    from backend.synth import layout
+
+    mesh = lumpy(1)  # coarse, so facets are large
+    m = MeshColorMaterial(mesh, 4)
+    m.make_spatial("albedo")  # mesh colors: the display mesh splits every face 4 x 4
+    m.set_values("albedo", [0.6, 0.5, 0.4])
+    m.set_values("specular", 0.3)
+    m.set_values("roughness", 0.35)
+    d = m.display(mesh)
+    assert d.n_faces == 16 * mesh.n_faces
+    corners = [np.flatnonzero(np.all(np.isclose(d.vertices, v), axis=1))[0] for v in mesh.vertices]
+    np.testing.assert_allclose(d.shading_normals[corners], mesh.vertex_normals(), atol=1e-6)
+    np.testing.assert_allclose(np.linalg.norm(d.shading_normals, axis=1), 1.0, atol=1e-6)
+    faceted = d.copy()
+    for k in ("nx", "ny", "nz"):
+        del faceted.attributes[k]
+    cams = layout.orbit_cameras(layout.fibonacci_sphere(2), np.zeros(3), 1.2, 48)
+    lights = [layout.paper_lights(c, 3.0) for c in cams]
+    settings = RenderSettings(spp=64, max_depth=2, integrator="path")
+
+    def images(m_, field):
+        renderer = SceneRenderer(m_, field, cams, lights, None, settings)
+        return np.concatenate([renderer.render_numpy(i, seed=3)[..., :3] for i in range(len(cams))])
+
+    smooth = images(mesh, m.field)
+    phong, flat = (psnr(images(x, display_field(x)), smooth) for x in (d, faceted))
+    print(f"display vs smooth mesh: Phong normals {phong:.1f} dB, facet normals {flat:.1f} dB")
+    assert phong > 35 and phong > flat + 6, (phong, flat)
