@@ -7,6 +7,7 @@ first writes RUN/capture as ``capture-from-video`` does (reused by --resume)."""
 
 from __future__ import annotations
 
+import math
 import os
 from pathlib import Path
 from types import SimpleNamespace
@@ -62,6 +63,9 @@ def add_arguments(parser):
                         help="light-transport effects: 'auto' (measured on the scene), 'all', or a list of "
                              "indirect, shadows, specular, silhouettes (prefix '-' to force one off, e.g. auto,-shadows)")
     parser.add_argument("--initial-faces", type=int, help=f"faces of the initial mesh ({d.initial_faces})")
+    parser.add_argument("--face-growth", type=float, metavar="F",
+                        help="multiply the face budget by F (> 1) after each simplification instead of adding half "
+                             "the initial face count (the paper's rule): more faces sooner, for finely detailed objects")
     parser.add_argument("--max-levels", type=int, help=f"most coarse-to-fine levels ({d.max_levels})")
     parser.add_argument("--level-iterations", type=int, help=f"most steps per level ({d.level_iterations})")
     parser.add_argument("--step", type=float,
@@ -81,7 +85,7 @@ def add_arguments(parser):
 
 OVERRIDES = ("init", "material", "effects", "initial_faces", "iterations", "seed", "max_size", "coarse_size", "views_per_step",
              "integrator", "max_depth", "spp", "remesh", "max_levels", "level_iterations", "step", "lambda_",
-             "track_metrics")
+             "face_growth", "track_metrics")
 
 
 def choose_preset(args) -> str:
@@ -98,6 +102,8 @@ def config_from_args(args) -> ReconstructConfig:
         value = getattr(args, name)
         flag = "--smoothing" if name == "lambda_" else "--" + name.replace("_", "-")
         require(value is None or value > 0, None, f"{flag} must be positive (got {value})", f"give {flag} a value above 0")
+    require(args.face_growth is None or (math.isfinite(args.face_growth) and args.face_growth > 1), None,
+            f"--face-growth must be above 1 (got {args.face_growth})", "give e.g. --face-growth 1.5")
     values = dict(PRESETS[choose_preset(args)])
     values.update({k: getattr(args, k) for k in OVERRIDES if getattr(args, k) not in (None, False)})
     if args.time_budget is not None:

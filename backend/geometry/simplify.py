@@ -1,7 +1,9 @@
 """Quadric-error simplification and the coarse-to-fine face budget.
 
 The budget follows the paper: D starts at twice the initial face count and grows by half
-the initial face count after every simplification. Unlike the paper's code, every mesh this
+the initial face count after every simplification; with a ``growth`` factor it is
+multiplied by that factor instead (detail keeps pace with the levels on finely detailed
+objects: ``reconstruct --face-growth``). Unlike the paper's code, every mesh this
 module returns honours the budget (``simplify`` never returns more than its target)."""
 
 from __future__ import annotations
@@ -48,18 +50,18 @@ class FaceBudget:
     initial: int  # face count of the initial mesh
     limit: int = 0  # D; 0 = twice the initial count
     simplifications: int = 0
+    growth: float | None = None  # None: D grows by initial / 2 (the paper); else D is multiplied by it
 
     def __post_init__(self):
         self.initial = max(int(self.initial), 4)
         self.limit = int(self.limit or 2 * self.initial)
 
     def enforce(self, mesh: Mesh) -> Mesh:
-        """Simplify to D when the mesh exceeds it, then grow D by half the initial count."""
+        """Simplify to D when the mesh exceeds it, then grow D."""
         if mesh.n_faces <= self.limit:
             return mesh
         out = simplify(mesh, self.limit)
-        self.simplifications += 1
-        self.limit += self.initial // 2
+        self._grow()
         return out
 
     def refine(self, mesh: Mesh) -> tuple[Mesh, bool]:
@@ -77,12 +79,16 @@ class FaceBudget:
         if target <= self.limit:
             return target
         target = self.limit
-        self.simplifications += 1
-        self.limit += self.initial // 2
+        self._grow()
         return target
 
+    def _grow(self) -> None:
+        self.simplifications += 1
+        self.limit = int(self.limit * self.growth) if self.growth else self.limit + self.initial // 2
+
     def state(self) -> dict:
-        return {"initial": self.initial, "limit": self.limit, "simplifications": self.simplifications}
+        return {"initial": self.initial, "limit": self.limit, "simplifications": self.simplifications,
+                "growth": self.growth}
 
 
 def edge_length_for_faces(mesh: Mesh, faces: int) -> float:

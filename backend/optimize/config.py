@@ -13,6 +13,7 @@ class ReconstructConfig:
     effects: str = "auto"  # light-transport effects: auto (measured), all, or a list (see render/effects.py)
     initial_faces: int = 5000  # face count of the initial mesh; the budget D starts at twice this
     max_faces: int = 250_000  # refinement stops once the budget would exceed this
+    face_growth: float | None = None  # None: the budget grows by initial_faces / 2 a level (the paper); else x this
     # limits
     time_budget_s: float | None = None  # wall clock for the whole run (initialisation included)
     iterations: int | None = None  # total optimisation steps over all levels

@@ -123,7 +123,7 @@ class Reconstruction:
         self.material = self.appearance.initial_material(self.mesh, coarse) or self.material
         self.appearance.decide(self.mesh, self.material, coarse, reason="initial mesh")
         self._choose_stiffness(coarse)
-        self.budget = FaceBudget(self.mesh.n_faces)
+        self.budget = FaceBudget(self.mesh.n_faces, growth=c.face_growth)
         self._timed("init", start)
         report = inspect(self.mesh)
         self.init_info = {"kind": kind, "faces": self.mesh.n_faces, "genus": report.genus,

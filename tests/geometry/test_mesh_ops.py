@@ -129,6 +129,13 @@ def test_face_budget_is_honoured_and_grows():
     assert exact and out.n_faces == 1280 and small.limit == 5000
     assert small.next_target(1000) == 4000 and small.limit == 5000
     assert small.next_target(2000) == 5000 and small.limit == 5500
+    fast = FaceBudget(1280, growth=1.5)  # multiplied instead
+    limits = []
+    for _ in range(3):
+        limits.append(fast.limit)
+        mesh, _ = fast.refine(mesh)
+        assert mesh.n_faces <= limits[-1]
+    assert limits == [2560, 3840, 5760] and FaceBudget(**fast.state()) == fast
 
 
 def test_vertex_normals_and_shading_normals_follow_a_transform():

@@ -167,6 +167,9 @@ def test_bad_initial_meshes(capture, tmp_path):
         assert line.startswith("error: ") and words in line and "Traceback" not in proc.stderr
     proc = run_cli("reconstruct", capture, "--out", tmp_path / "r", *FAST, "--material", "shiny")
     assert proc.returncode == 2 and "material" in proc.stderr and not (tmp_path / "r").exists()
+    for growth in ("0.8", "nan"):
+        proc = run_cli("reconstruct", capture, "--out", tmp_path / "r", *FAST, "--face-growth", growth)
+        assert proc.returncode == 2 and "--face-growth must be above 1" in proc.stderr and not (tmp_path / "r").exists()
 
 
 def test_non_manifold_initial_mesh_is_repaired_with_a_warning(capture, tmp_path):
