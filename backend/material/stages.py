@@ -57,6 +57,7 @@ class FitResult:
     light_factor: float = 1.0
     highlight_share: float = 0.0  # share of object pixels dropped as highlights
     seconds: float = 0.0
+    reverted: bool = False  # the stage raised the full-view loss, so the material before it was kept
 
     @property
     def loss(self) -> float:
@@ -377,11 +378,30 @@ class MaterialSchedule:
         self.constant_cycles = self.restart_cycles
 
 
+def _saved(material: MeshColorMaterial) -> tuple[dict, float]:
+    return {n: (material.values(n).copy(), material.channels[n].kind) for n in material.CHANNELS}, material.light_factor
+
+
+def _restore(renderer, material: MeshColorMaterial, saved: tuple[dict, float]) -> None:
+    channels, k = saved
+    for name, (values, kind) in channels.items():
+        material.set_values(name, values, kind)
+    if ENV_SCALE in renderer.params and k != material.light_factor:
+        renderer.params[ENV_SCALE] = mi.Float(float(renderer.params[ENV_SCALE][0]) * k / material.light_factor)
+        renderer.params.update()
+    material.light_factor = k
+
+
 def run_cycle(schedule: MaterialSchedule, renderer, images, weights, material: MeshColorMaterial,
               settings: FitSettings | None = None, emit=None, loss_spp: int = 0) -> FitResult:
-    """Run the schedule's current stage once, then report the full-view loss to the schedule."""
+    """Run the schedule's current stage once, then report the full-view loss to the schedule.
+    A stage that raises that loss (a diverging fit) is undone: the material never gets worse."""
     settings = settings or FitSettings()
     stage = schedule.stage
+    if stage == "done":
+        return FitResult("done")
+    before = evaluate_loss(renderer, images, weights, material, loss_spp)
+    saved = _saved(material)
     if stage == "constant":
         result = fit_constants(renderer, images, weights, material, settings, emit)
     elif stage == "diffuse":
@@ -391,7 +411,9 @@ def run_cycle(schedule: MaterialSchedule, renderer, images, weights, material: M
     elif stage == "specular":
         spec = settings if settings.variance_weight else dataclasses.replace(settings, variance_weight=0.1)
         result = fit_specular(renderer, images, weights, material, spec, emit=emit)
-    else:
-        return FitResult("done")
-    schedule.report(evaluate_loss(renderer, images, weights, material, loss_spp))
+    after = evaluate_loss(renderer, images, weights, material, loss_spp)
+    if not after <= before:
+        _restore(renderer, material, saved)
+        result.reverted, after = True, before
+    schedule.report(after)
     return result

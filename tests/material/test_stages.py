@@ -158,6 +158,32 @@ def test_run_cycle_walks_the_schedule():
     assert len(schedule.history) == len(ran)
 
 
+def test_a_stage_that_raises_the_loss_is_undone():
+    """A diverging fit (absurd steps on the truth itself) leaves the material as it was; a
+    sound one is kept."""
+    mesh, cams, lights, truth = scene()
+    images, weights = render_truth(mesh, cams[:3], lights[:3], truth)
+    renderer = SceneRenderer(mesh, truth.field, cams[:3], lights[:3], None,
+                             RenderSettings(spp=8, max_depth=2, integrator="prb"))
+    schedule = stages.MaterialSchedule(constant_cycles=1)
+    schedule.stage = "specular"
+    before = {n: truth.values(n).copy() for n in truth.CHANNELS}
+    loss = stages.evaluate_loss(renderer, images, weights, truth)
+    result = stages.run_cycle(schedule, renderer, images, weights, truth,
+                              stages.FitSettings(iterations=6, lr=20.0, lr_decay=1.0))
+    assert result.reverted and schedule.history[-1][1] == loss
+    assert truth.channels["specular"].kind == "constant"  # the stage had made it mesh colors
+    for n, values in before.items():
+        np.testing.assert_allclose(truth.values(n), values, atol=1e-5)
+    assert stages.evaluate_loss(renderer, images, weights, truth) == pytest.approx(loss, rel=1e-6)
+    start = MeshColorMaterial(mesh, 1)  # neutral grey: a sound constant fit only improves it
+    renderer = SceneRenderer(mesh, start.field, cams[:3], lights[:3], None,
+                             RenderSettings(spp=8, max_depth=2, integrator="prb"))
+    result = stages.run_cycle(stages.MaterialSchedule(), renderer, images, weights, start,
+                              stages.FitSettings(iterations=10))
+    assert not result.reverted and not np.allclose(start.values("albedo"), MeshColorMaterial(mesh, 1).values("albedo"))
+
+
 def test_silhouette_band_is_left_out_of_the_fit():
     # pixels in the band just inside each outline do not steer the material: corrupting them
     # leaves the fit unchanged, while corrupting pixels further inside changes it
