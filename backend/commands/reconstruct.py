@@ -102,8 +102,9 @@ def config_from_args(args) -> ReconstructConfig:
         value = getattr(args, name)
         flag = "--smoothing" if name == "lambda_" else "--" + name.replace("_", "-")
         require(value is None or value > 0, None, f"{flag} must be positive (got {value})", f"give {flag} a value above 0")
-    require(args.face_growth is None or (math.isfinite(args.face_growth) and args.face_growth > 1), None,
-            f"--face-growth must be above 1 (got {args.face_growth})", "give e.g. --face-growth 1.5")
+    growth = args.face_growth
+    require(growth is None or (math.isfinite(growth) and growth > 1), None,
+            f"--face-growth must be above 1 (got {growth})", "give e.g. --face-growth 1.5")
     values = dict(PRESETS[choose_preset(args)])
     values.update({k: getattr(args, k) for k in OVERRIDES if getattr(args, k) not in (None, False)})
     if args.time_budget is not None:
