@@ -160,8 +160,7 @@ def evaluate(name: str, capture, run: Path, spec) -> dict:
     """Table rows for one mesh: initialisation and reconstruction."""
     from ..capture.format import load_capture
     from ..capture.images import read_mask, read_rgba
-    from ..geometry.mesh import load_mesh
-    from ..geometry.mesh import Mesh
+    from ..geometry.mesh import Mesh, load_mesh
     from ..material.model import MeshColorMaterial
     from ..material.passes import component_renders
     from ..optimize.run_folder import RunFolder

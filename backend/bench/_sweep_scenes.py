@@ -19,10 +19,8 @@ import numpy as np
 
 from .. import fsio
 from ..geometry.mesh import Mesh
-from ._data import SHARED_DATA
+from ._data import SHARED_DATA as SHARED
 
-REPO = Path(__file__).resolve().parents[2]
-SHARED = SHARED_DATA
 DRAGON = SHARED / "meshes" / "shapefromtracing" / "dragon.obj"  # Y up (standing along +Y)
 STUDIO = SHARED / "envmaps" / "studio_small_03_1k.hdr"
 CORNER_COLOURS = {"floor": [0.75, 0.75, 0.75], "x": [0.75, 0.08, 0.06], "y": [0.08, 0.12, 0.75]}

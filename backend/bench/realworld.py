@@ -33,10 +33,9 @@ import sys
 import time
 from pathlib import Path
 
-from ._data import SHARED_DATA
+from ._data import SHARED_DATA as SHARED
 
 ROOT = Path(__file__).resolve().parents[2]
-SHARED = SHARED_DATA
 RENDER_SETTINGS = ("mesh", "up", "env", "env_rotation", "frames", "size", "samples", "jitter", "seed")
 
 

@@ -21,7 +21,6 @@ import numpy as np
 from ..metrics.geometry import align_similarity
 from ._data import SHARED_DATA
 
-ROOT = Path(__file__).resolve().parents[2]
 SHARED = SHARED_DATA / "captures"
 CAPTURES = {"dino": SHARED / "middlebury_dinoSparseRing", "fox": SHARED / "fox_instant_ngp"}
 OPENCV_TO_OPENGL = np.diag([1.0, -1.0, -1.0])

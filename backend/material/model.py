@@ -275,11 +275,10 @@ class MeshColorMaterial:
             faces = inverse.reshape(key.shape)[:, local_sub_triangles(r)].reshape(-1, 3)
             site_face = np.repeat(np.arange(F), key.shape[1])[first]
             site = value_site = np.tile(layout.local_barycentrics(), (F, 1))[first]
-        tri = mesh.vertices[mesh.faces[site_face]]
-        b1, b2 = site[:, 0:1], site[:, 1:2]
-        vertices = (1 - b1 - b2) * tri[:, 0] + b1 * tri[:, 1] + b2 * tri[:, 2]
-        corner_normals = mesh.vertex_normals()[mesh.faces[site_face]]
-        normals = (1 - b1 - b2) * corner_normals[:, 0] + b1 * corner_normals[:, 1] + b2 * corner_normals[:, 2]
+        corners = mesh.faces[site_face]
+        weights = np.stack([1 - site[:, 0] - site[:, 1], site[:, 0], site[:, 1]], -1)[..., None]
+        vertices = (mesh.vertices[corners] * weights).sum(1)
+        normals = (mesh.vertex_normals()[corners] * weights).sum(1)
         normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-30)
         vals = self.evaluate(site_face, value_site[:, 0], value_site[:, 1])
         return Mesh(vertices, faces, vals["albedo"].astype(np.float32),
