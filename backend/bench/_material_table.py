@@ -17,7 +17,8 @@ at the held-out views under their point lights, against the truth rendered the s
 for the reconstruction also albedo RMSE, PSNR under the relit sky (never seen by the run),
 and the full PSNR its geometry reaches with the true material sampled into the same mesh
 colors (a geometry-only bound: what a perfect material fit would score on that mesh).
-Writes ``OUT/table1.json`` and prints the table."""
+Writes ``OUT/table1.json`` (rows of meshes not run again are kept when the spec is the same)
+and prints the table."""
 
 from __future__ import annotations
 
@@ -270,7 +271,9 @@ def run(args) -> int:
     if unknown:
         raise InputError(None, f"unknown mesh(es) {', '.join(unknown)}", f"choose from {', '.join(MESHES)}")
     out = Path(args.out)
-    results = {}
+    table = out / "table1.json"
+    spec_json = {f.name: getattr(spec, f.name) for f in fields(spec)}
+    results = {name: rows for name, rows in _earlier(table, spec_json).items() if name not in names}
     for name in names:
         capture = capture_for(name, spec, out, lambda *a, **k: None)
         run_dir = out / name / "run"
@@ -294,8 +297,17 @@ def run(args) -> int:
                                     "albedo_rmse<=0.05": rec["albedo_rmse"] <= 0.05,
                                     "relit_psnr>=30": rec["relit_psnr"] >= 30.0}
         _log(format_table({name: results[name]}))
-        fsio.write_json(out / "table1.json", {"spec": {f.name: getattr(spec, f.name) for f in fields(spec)},
-                                              "targets": TARGETS, "meshes": results})
+        fsio.write_json(table, {"spec": spec_json, "targets": TARGETS, "meshes": results})
     _log("\n" + format_table(results))
-    _log(f"results: {out / 'table1.json'}")
+    _log(f"results: {table}")
     return 0
+
+
+def _earlier(table: Path, spec: dict) -> dict:
+    """Rows of meshes a previous run of the same spec wrote to ``table`` (kept when only some
+    meshes run again)."""
+    try:
+        earlier = json.loads(table.read_text())
+    except (OSError, ValueError):
+        return {}
+    return earlier.get("meshes", {}) if earlier.get("spec") == spec else {}

@@ -20,7 +20,7 @@ from ..capture.model import Camera, Capture
 from ..geometry.mesh import Mesh
 from .labels import FaceLabels, face_labels, load_material_labels
 from .model import MeshColorMaterial
-from .stages import FitResult, FitSettings, MaterialSchedule, run_cycle
+from .stages import FitResult, FitSettings, MaterialSchedule, fit_lobe, run_cycle
 
 
 @dataclass
@@ -59,6 +59,15 @@ class MaterialDriver:
     def cycle(self, renderer, images, masks, material: MeshColorMaterial, emit=None) -> FitResult:
         """Run the schedule's current stage once on ``renderer`` (built with ``material.field``)."""
         result = run_cycle(self.schedule, renderer, images, masks, material, self.settings, emit)
+        self.results.append(result)
+        return result
+
+    def lobe_on(self, renderer, images, masks, material: MeshColorMaterial, emit=None) -> FitResult | None:
+        """The specular lobe was turned on: fit its constants now, unless the constant stage is
+        about to (its textured stages then start from them)."""
+        if self.schedule.stage == "constant":
+            return None
+        result = fit_lobe(renderer, images, masks, material, self.settings, emit)
         self.results.append(result)
         return result
 

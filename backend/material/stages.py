@@ -297,6 +297,17 @@ def fit_constants(renderer, images, weights, material: MeshColorMaterial, settin
     return fit(renderer, images, weights, material, list(material.CHANNELS), settings, stage="constant", emit=emit)
 
 
+def fit_lobe(renderer, images, weights, material: MeshColorMaterial, settings: FitSettings | None = None,
+             emit=None) -> FitResult:
+    """The specular lobe's constants (specular and roughness per material) with the albedo held:
+    the constant stage for a lobe turned on after the albedo was fitted without it."""
+    settings = settings or FitSettings()
+    for name in ("specular", "roughness"):
+        material.make_constant(name)
+    weights = silhouette_weights(_weights(weights, images), settings.edge_erosion)
+    return fit(renderer, images, weights, material, ["specular", "roughness"], settings, stage="lobe", emit=emit)
+
+
 def fit_diffuse(renderer, images, weights, material: MeshColorMaterial, settings: FitSettings | None = None,
                 light: bool = False, emit=None) -> FitResult:
     """Stage 2: mesh-color albedo (initialised from the constants), highlights masked out;

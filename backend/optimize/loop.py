@@ -176,9 +176,12 @@ class Reconstruction:
         self._finish_materials()
 
     def _material_cycle(self, record: dict) -> None:
-        """One stage of the staged material schedule on this level's geometry and views."""
+        """The effects re-checked while the lobe is off, then one stage of the staged material
+        schedule, on this level's geometry and views."""
         size = level_size(self.level, self.config.coarse_size, self.config.max_size)
-        result = self.appearance.material_cycle(self.mesh, self.material, self.viewset.at(size), self.level)
+        views = self.viewset.at(size)
+        self.appearance.recheck(self.mesh, self.material, views, self.level)
+        result = self.appearance.material_cycle(self.mesh, self.material, views, self.level)
         if result is not None:
             record.setdefault("material", []).append(result)
 
@@ -352,6 +355,7 @@ class Reconstruction:
             self.material.on_subdivide(old, fine)
         else:
             self.material.on_remesh(self.mesh)
+            self.appearance.on_simplify(self.material)
         self._timed("refine", start)
 
     # -- output --------------------------------------------------------------------------------------

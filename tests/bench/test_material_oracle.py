@@ -1,6 +1,8 @@
-"""bench material's geometry-only bound: the truth's material sampled into the fitted mesh colors."""
+"""bench material: the geometry-only bound (the truth's material sampled into the fitted mesh colors) and Table 1's file."""
 
 from __future__ import annotations
+
+import json
 
 import numpy as np
 
@@ -30,3 +32,16 @@ def test_truth_sampled_into_mesh_colors_reproduces_it_on_the_same_surface():
     assert np.allclose(got["albedo"], albedo[first], atol=1e-4)
     assert np.allclose(got["specular"][:, 0], spec[first], atol=1e-4)
     assert np.allclose(got["roughness"][:, 0], rough[first], atol=1e-4)
+
+
+def test_table_keeps_the_rows_of_meshes_not_run_again(tmp_path):
+    """Rerunning one mesh of Table 1 keeps the others' rows, unless the spec changed."""
+    from backend.bench._material_table import _earlier
+
+    table = tmp_path / "table1.json"
+    assert _earlier(table, {"views": 32}) == {}
+    table.write_text(json.dumps({"spec": {"views": 32}, "meshes": {"dragon": {"rows": {}}}}))
+    assert _earlier(table, {"views": 32}) == {"dragon": {"rows": {}}}
+    assert _earlier(table, {"views": 16}) == {}
+    table.write_text("{ torn")
+    assert _earlier(table, {"views": 32}) == {}

@@ -196,3 +196,66 @@ def test_bench_targets_and_table():
     assert results["summary"]["corner"]["ok"] and results["summary"]["dragon_cornell"] is None
     text = bench.table(results)
     assert "4.0x" in text and "PASS" in text and "2 bounces" in text and "incomplete" in text
+
+
+def _staged_appearance(tmp_path, *synth_args):
+    from backend.capture.format import load_capture
+    from backend.events import null_emitter
+    from backend.geometry.mesh import load_mesh
+    from backend.optimize.appearance import Appearance
+    from backend.optimize.config import ReconstructConfig
+    from backend.optimize.views import ViewSet
+    from tests.helpers import run_cli
+
+    out = tmp_path / "capture"
+    run_cli("synth", "--out", out, "--views", 8, "--resolution", 32, "--spp", 32, "--held-out", 0, *synth_args,
+            check=True)
+    capture = load_capture(out)
+    app = Appearance(capture, ReconstructConfig(material="staged", effects="auto"), null_emitter())
+    app.driver.settings.iterations = 12
+    views = ViewSet(capture, 32).views
+    mesh = load_mesh(capture.path(capture.ground_truth["mesh"]))
+    return app, mesh, app.initial_material(mesh, views), views
+
+
+def test_a_lobe_found_after_a_diffuse_only_decision_restarts_and_is_fitted(tmp_path):
+    """A glossy object first judged diffuse (as on a carved start): when the re-check finds
+    the highlights, the lobe restarts from neutral values (held at 0 its sigmoid has no slope)
+    and its constants are fitted at once, lowering the full-view loss."""
+    from backend.material import stages
+    from backend.optimize.appearance import _disable_specular
+
+    app, mesh, material, views = _staged_appearance(tmp_path)
+    app.decision = effects.EffectsDecision(specular=False, max_depth=2)
+    _disable_specular(material)
+    app.specular_off = True
+    app.driver.schedule.stage = "diffuse"  # the constants were fitted diffuse-only
+
+    def full_loss():
+        renderer = app._renderer(mesh, material, views, geometry=False)
+        return stages.evaluate_loss(renderer, [v.target for v in views], app._masks(views), material)
+
+    diffuse_only = full_loss()
+    app.recheck(mesh, material, views, level=1)
+    assert app.decision.specular, app.decision.reasons
+    assert app.history[-1]["reason"].startswith("level 1")
+    assert "specular" in material.trainable and app.driver.results[-1].stage == "lobe"
+    assert float(material.values("specular").mean()) > 0.05, material.values("specular")
+    assert full_loss() < 0.9 * diffuse_only
+
+
+def test_simplification_keeps_a_diffuse_only_decision(tmp_path):
+    """Simplifying restarts the material from neutral values (specular 0.1); a diffuse-only
+    decision is applied again, so geometry never trains under a lobe the effects ruled out."""
+    from backend.geometry.simplify import simplify
+
+    app, mesh, material, views = _staged_appearance(tmp_path, "--specular", 0, "--lighting", "env", "--env", "sky")
+    app.decide(mesh, material, views, reason="initial mesh")
+    assert not app.decision.specular, app.decision.reasons
+    coarser = simplify(mesh, mesh.n_faces // 2)
+    material.on_remesh(coarser)
+    assert np.all(material.values("specular") > 0.05)  # the neutral restart
+    app.on_simplify(material)
+    assert np.all(material.values("specular") < 1e-5) and "specular" not in material.trainable
+    app.recheck(coarser, material, views, level=1)  # still diffuse: measured again, stays off
+    assert not app.decision.specular and np.all(material.values("specular") < 1e-5)
