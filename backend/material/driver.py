@@ -1,4 +1,4 @@
-"""What the reconstruction loop needs to run materials, in five calls.
+"""What the reconstruction loop needs to run materials, in a few calls.
 
     driver = MaterialDriver(capture, n_materials=1)         # material masks checked (InputError)
     material = driver.material(mesh, cameras, images, masks) # labels voted, neutral grey start
@@ -6,13 +6,15 @@
     driver.cycle(renderer, images, masks, material, emit)    # one stage of the schedule
     driver.on_remesh(mesh, material, cameras)                # after a re-mesh (labels re-voted)
     driver.finalise()                                        # geometry converged: last, longer stages
+    driver.state() / driver.restore(state, images, masks)   # the schedule's position, for --resume
 
 ``driver.done`` tells when the material schedule has finished (the loss stopped improving
 in the last stage)."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+import math
+from dataclasses import asdict, dataclass, field, replace
 
 import numpy as np
 
@@ -81,6 +83,21 @@ class MaterialDriver:
         """Call after ``material.on_remesh(mesh)``: labels re-voted, the schedule restarts."""
         self.relabel(mesh, material, cameras)
         self.schedule.on_remesh()
+
+    def state(self) -> dict:
+        """The schedule's position and the stage length, JSON-able (for --resume)."""
+        schedule = asdict(self.schedule)
+        schedule["best"] = schedule["best"] if math.isfinite(schedule["best"]) else None
+        return {"schedule": schedule, "iterations": self.settings.iterations}
+
+    def restore(self, state: dict | None, images: list[np.ndarray], masks: list[np.ndarray] | None) -> None:
+        """Continue a resumed run where ``state`` (from ``state()``) left the schedule; the
+        material itself comes from its own file. ``images``/``masks`` as for ``material()``."""
+        self._images, self._masks = images, masks
+        if state:
+            schedule = dict(state["schedule"], best=state["schedule"]["best"] or math.inf)
+            self.schedule = MaterialSchedule(**schedule)
+            self.settings = replace(self.settings, iterations=int(state["iterations"]))
 
     def report(self) -> dict:
         out = {"stages": [{"stage": r.stage, "iterations": len(r.losses), "loss": r.loss,

@@ -95,6 +95,15 @@ class Appearance:
             self.driver.on_remesh(mesh, material, [v.camera for v in views])
         self.decide(mesh, material, views, reason="re-meshed")
 
+    def state(self) -> dict | None:
+        """The material schedule's position (for --resume), or None without one."""
+        return None if self.driver is None else self.driver.state()
+
+    def restore(self, state: dict | None, views) -> None:
+        """A resumed run: the material schedule continues where ``state`` left it."""
+        if self.driver is not None:
+            self.driver.restore(state, [v.target for v in views], self._masks(views))
+
     def finish(self, folder, mesh, material) -> dict:
         out = {"effects": self.history, "appearance_seconds": round(self.seconds, 3)}
         if self.driver is not None:

@@ -135,10 +135,7 @@ class Reconstruction:
     def _load_state(self) -> None:
         state, material_path = self.folder.load_state()
         self.mesh = Mesh(state["vertices"], state["faces"])
-        if self.material is None:
-            self.material = ConstantMaterial.load(material_path)
-        else:
-            self.material = type(self.material).load(material_path)
+        self.material = self._load_material(material_path)
         self.level, self.iteration = state["level"], state["iteration"]
         self.phase = state["phase"]
         self.budget = FaceBudget(**state["budget"])
@@ -147,8 +144,25 @@ class Reconstruction:
         self.before = state["seconds"]
         self.emit("stage", stage="resume", level=self.level, faces=self.mesh.n_faces)
         coarse = self.viewset.at(self.config.coarse_size)
+        self.appearance.restore(state.get("appearance"), coarse)
         self.appearance.decide(self.mesh, self.material, coarse, reason="resumed")
         self._choose_stiffness(coarse)
+
+    def _load_material(self, path: Path):
+        """The saved material, of the model this run's --material asks for."""
+        from ..errors import InputError
+
+        staged = self.appearance.driver is not None
+        with np.load(path) as data:
+            saved_staged = "resolution" in data.files  # mesh colors
+        if saved_staged != staged:
+            raise InputError(self.folder.path, f"the run was made {'with' if saved_staged else 'without'} "
+                             "--material staged", "resume with the options the run was started with")
+        if staged:
+            from ..material.model import MeshColorMaterial
+
+            return MeshColorMaterial.load(path)
+        return ConstantMaterial.load(path)
 
     def _choose_stiffness(self, views) -> None:
         self.stiffness = choose_stiffness(self.config, views, spatially_varying=self.appearance.driver is not None)
@@ -363,7 +377,7 @@ class Reconstruction:
         return {"vertices": self.mesh.vertices, "faces": self.mesh.faces, "level": self.level,
                 "iteration": self.iteration, "phase": self.phase, "budget": self.budget.state(),
                 "levels": self.levels, "skipped": self.skipped, "timings": self.timings,
-                "init": self.init_info, "seconds": round(self.elapsed(), 3)}
+                "init": self.init_info, "seconds": round(self.elapsed(), 3), "appearance": self.appearance.state()}
 
     def _snapshot(self, loss) -> str:
         start = time.perf_counter()

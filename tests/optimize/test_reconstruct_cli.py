@@ -142,6 +142,36 @@ def test_stop_file_cancels_with_an_intact_snapshot_and_resume_finishes(capture, 
     assert json.loads((run / "report.json").read_text())["result"]["iterations"] == 60
 
 
+def test_a_staged_material_run_resumes_where_its_schedule_stopped(capture, tmp_path):
+    """--resume of a --material staged run: the mesh colors and the schedule's position come
+    back; resuming it without --material staged is refused with a one-line error."""
+    run = tmp_path / "run"
+    proc = start(capture, run, "--iterations", 200, "--material", "staged")
+    deadline = time.monotonic() + 180
+    for line in proc.stdout:  # stop in level 1, after level 0's material cycle
+        e = json.loads(line)
+        if e["event"] == "stage" and e["stage"] == "geometry" and e["level"] >= 1:
+            break
+        assert time.monotonic() < deadline, "no second level in time"
+    (run / "STOP").touch()
+    out, err = proc.communicate(timeout=120)
+    assert proc.returncode == 130, err[-2000:]
+    saved = json.loads((run / "state" / "state.json").read_text())["appearance"]["schedule"]
+    assert saved["history"], saved  # at least the first cycle is on record
+
+    wrong = run_cli("reconstruct", capture, "--out", run, "--resume", "--iterations", 200, *FAST, timeout=120)
+    assert wrong.returncode == 2 and "Traceback" not in wrong.stderr
+    assert "--material staged" in wrong.stderr and len(wrong.stderr.strip().splitlines()) == 1, wrong.stderr
+
+    resumed = run_cli("reconstruct", capture, "--out", run, "--resume", "--iterations", 200, *FAST,
+                      "--material", "staged", timeout=300)
+    assert resumed.returncode == 0, resumed.stderr[-3000:]
+    report = json.loads((run / "report.json").read_text())
+    history = report["material_schedule"]["schedule"]
+    assert history[:len(saved["history"])] == saved["history"] and len(history) > len(saved["history"])
+    assert report["material"]["resolution"] >= 0 and (run / "result.glb").is_file()
+
+
 def test_sigterm_cancels_cleanly(capture, tmp_path):
     run = tmp_path / "run"
     proc = start(capture, run, "--iterations", 200)
