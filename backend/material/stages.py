@@ -383,6 +383,11 @@ class MaterialSchedule:
             self.stage = "diffuse"
         self.cycle, self.stale, self.best, self.patience = 0, 0, math.inf, patience
 
+    def refine(self, stage: str = "specular") -> None:
+        """The geometry moved under the finished material: its last stage (the specular stage
+        fits every channel, highlights included) runs again until a cycle stops improving."""
+        self.stage, self.cycle, self.stale, self.best, self.patience = stage, 0, 0, math.inf, 1
+
     def on_remesh(self) -> None:
         """The material restarted from grey: a short constant stage, then textures again."""
         self.stage, self.cycle, self.stale, self.best = "constant", 0, 0, math.inf

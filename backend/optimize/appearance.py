@@ -90,6 +90,12 @@ class Appearance:
         if self.driver is not None:
             self.driver.finalise()
 
+    def refine_material(self) -> None:
+        """The surface moved under the finished material: its last stage runs again."""
+        if self.driver is not None:
+            diffuse_only = self.decision is not None and not self.decision.specular
+            self.driver.schedule.refine("diffuse" if diffuse_only else "specular")
+
     def on_remesh(self, mesh, material, views) -> None:
         if self.driver is not None:
             self.driver.on_remesh(mesh, material, [v.camera for v in views])

@@ -52,6 +52,10 @@ class ReconstructConfig:
     min_level_iterations: int = 30
     max_levels: int = 12
     level_tolerance: float = 0.003
+    # with --material staged: geometry rounds at the final face count under the fitted material
+    # (see Reconstruction._polish), while a round lowers the validation loss by polish_tolerance
+    polish_rounds: int = 3
+    polish_tolerance: float = 0.02
     # re-meshing between levels: auto = when ray casting finds back faces or geometry outside
     # the masks on more than remesh_threshold of the hits
     remesh: str = "auto"

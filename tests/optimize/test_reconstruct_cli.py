@@ -172,6 +172,26 @@ def test_a_staged_material_run_resumes_where_its_schedule_stopped(capture, tmp_p
     assert report["material"]["resolution"] >= 0 and (run / "result.glb").is_file()
 
 
+def test_a_staged_run_polishes_the_surface_under_the_fitted_material(capture, tmp_path):
+    """After the material stages finish, geometry rounds at the same face count run under the
+    fitted (frozen) material, each followed by a material refinement, until one stops improving."""
+    run = tmp_path / "run"
+    proc = run_cli("reconstruct", capture, "--out", run, *FAST, "--material", "staged", "--max-levels", 1,
+                   "--level-iterations", 60, timeout=600)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    report = json.loads((run / "report.json").read_text())
+    first, *polish = report["levels"]
+    assert 1 <= len(polish) <= ReconstructConfig().polish_rounds and all(r["polish"] for r in polish)
+    assert all(r["faces"] == first["faces"] for r in polish)
+    assert polish[0]["loss"] < polish[0]["loss_start"] < first["loss"]  # the fitted material, then the surface
+    assert len(polish) == ReconstructConfig().polish_rounds or (
+        polish[-1]["loss"] > polish[-1]["loss_start"] * (1 - ReconstructConfig().polish_tolerance))
+    stages = [stage for stage, _ in report["material_schedule"]["schedule"]]
+    assert stages[-1] == "specular" and stages.count("specular") > 2
+    state = json.loads((run / "state" / "state.json").read_text())
+    assert state["phase"] == "done" and state["polished"] == len(polish)
+
+
 def test_sigterm_cancels_cleanly(capture, tmp_path):
     run = tmp_path / "run"
     proc = start(capture, run, "--iterations", 200)
