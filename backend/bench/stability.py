@@ -150,7 +150,7 @@ def recording(inject_nan: set[int] = frozenset(), track_tangles: bool = False):
             self.faces = mesh.faces
             super().__init__(mesh, material, *args, **kwargs)
 
-        def loss_and_grad(self, vertices, view_ids, step_seed, geometry=True):
+        def loss_and_grad(self, vertices, view_ids, step_seed, geometry=True, material=True):
             step = len(log.losses)
             if not np.all(np.isfinite(vertices)):
                 log.flag(f"step {step}: non-finite vertex positions")
@@ -158,7 +158,7 @@ def recording(inject_nan: set[int] = frozenset(), track_tangles: bool = False):
                 log.flag(f"step {step}: {problem}")
             if track_tangles:
                 log.step_intersections.append(self_intersections(Mesh(vertices, self.faces)))
-            loss, grad, mgrads = super().loss_and_grad(vertices, view_ids, step_seed, geometry)
+            loss, grad, mgrads = super().loss_and_grad(vertices, view_ids, step_seed, geometry, material)
             if step in inject_nan:
                 if grad is not None:
                     grad = grad.copy()

@@ -92,6 +92,11 @@ class Reconstruction:
         driver = self.appearance.driver
         return driver.reserve if driver is not None else 0.0
 
+    def _polish_reserve(self) -> float:
+        """The share of a time budget polish rounds leave to the material refinement after them."""
+        driver = self.appearance.driver
+        return driver.polish_reserve if driver is not None else 0.0
+
     def _timed(self, name: str, start: float) -> None:
         self.timings[name] = round(self.timings.get(name, 0.0) + time.perf_counter() - start, 3)
 
@@ -210,7 +215,7 @@ class Reconstruction:
         c = self.config
         if self.appearance.driver is None:
             return
-        while self.polished < c.polish_rounds and not self._out_of_budget(self._geometry_reserve()):
+        while self.polished < c.polish_rounds and not self._out_of_budget(self._polish_reserve()):
             record = self._run_level(material=False)
             record["polish"] = True
             self.polished += 1
@@ -265,24 +270,26 @@ class Reconstruction:
         plateau = Plateau(c.plateau_tolerance, c.patience)
         vertices = self.mesh.vertices.copy()
         plateau.update(objective.loss(vertices, val_ids, val_seed, c.validation_spp))
-        self.emit("stage", stage="geometry", level=self.level, faces=self.mesh.n_faces, iteration=self.iteration,
+        stage = "geometry" if material else "polish"
+        self.emit("stage", stage=stage, level=self.level, faces=self.mesh.n_faces, iteration=self.iteration,
                   loss=plateau.best, size=size, seconds=round(self.elapsed(), 3))
         best = (vertices.copy(), self._latents())
         first_loss = plateau.best
         rng = np.random.default_rng([c.seed, self.level])
         order: list[int] = []
+        warmup = self._warmup() if material and self.level == 0 else 0  # material-only steps first
         self.level_iteration = 0
         try:
             while self.level_iteration < c.level_iterations:
                 self.folder.check_stop()
-                if self._out_of_budget(self._geometry_reserve()):
+                if self._out_of_budget(self._geometry_reserve() if material else self._polish_reserve()):
                     break
                 ids = []
                 while len(ids) < min(c.views_per_step, len(views)):
                     if not order:
                         order = list(rng.permutation(len(views)))
                     ids.append(int(order.pop()))
-                geometry = self.level > 0 or not material or self.level_iteration >= self._warmup()
+                geometry = self.level_iteration >= warmup
                 loss, grad, mgrads = objective.loss_and_grad(vertices, ids, seed_for(c.seed, self.iteration, 0),
                                                              geometry, material)
                 self.iteration += 1
@@ -307,7 +314,7 @@ class Reconstruction:
                 if mgrads:
                     latents = {n: z for n, z in self._latents().items() if n in mgrads}  # the trainable ones
                     self.material.load_parameters(material_opt.step(latents, mgrads))
-                self.progress.update(stage="geometry", level=self.level, iteration=self.level_iteration,
+                self.progress.update(stage=stage, level=self.level, iteration=self.level_iteration,
                                      iterations=c.level_iterations, loss=loss, faces=self.mesh.n_faces)
                 if self.level_iteration % c.eval_every == 0:
                     val = objective.loss(vertices, val_ids, val_seed, c.validation_spp)
@@ -319,7 +326,6 @@ class Reconstruction:
                         opt.set_vertices(vertices)
                         opt.reset_moments()
                         opt.lr *= 0.5
-                    warmup = self._warmup() if material and not self.level else 0
                     settled = self.level_iteration >= c.min_level_iterations + warmup
                     if plateau.converged and settled:
                         if opt.lr <= lr0 * c.min_step_scale * 1.0001:
@@ -333,7 +339,7 @@ class Reconstruction:
             # keep the best surface found so far, also when cancelled
             self.mesh = Mesh(best[0], self.mesh.faces)
             self.material.load_parameters(best[1])
-            self._timed("geometry", start)
+            self._timed(stage, start)
         record = {"level": self.level, "size": size, "faces": self.mesh.n_faces, "iterations": self.level_iteration,
                   "loss_start": first_loss, "loss": plateau.best, "step_final": opt.lr / lr0,
                   "seconds": round(time.perf_counter() - start, 3), "elapsed": round(self.elapsed(), 3)}
@@ -407,8 +413,8 @@ class Reconstruction:
     # -- output --------------------------------------------------------------------------------------
     def _state(self) -> dict:
         return {"vertices": self.mesh.vertices, "faces": self.mesh.faces, "level": self.level,
-                "iteration": self.iteration, "phase": self.phase, "budget": self.budget.state(), "polished": self.polished,
-                "levels": self.levels, "skipped": self.skipped, "timings": self.timings,
+                "iteration": self.iteration, "phase": self.phase, "polished": self.polished,
+                "budget": self.budget.state(), "levels": self.levels, "skipped": self.skipped, "timings": self.timings,
                 "init": self.init_info, "seconds": round(self.elapsed(), 3), "appearance": self.appearance.state()}
 
     def _snapshot(self, loss) -> str:

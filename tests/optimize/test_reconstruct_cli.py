@@ -190,6 +190,9 @@ def test_a_staged_run_polishes_the_surface_under_the_fitted_material(capture, tm
     assert stages[-1] == "specular" and stages.count("specular") > 2
     state = json.loads((run / "state" / "state.json").read_text())
     assert state["phase"] == "done" and state["polished"] == len(polish)
+    log = events(run)
+    assert sum(e["event"] == "stage" and e["stage"] == "polish" for e in log) == len(polish)
+    assert report["timings"]["polish"] > 0
 
 
 def test_sigterm_cancels_cleanly(capture, tmp_path):
