@@ -100,8 +100,8 @@ class MaterialDriver:
         material itself comes from its own file. ``images``/``masks`` as for ``material()``."""
         self._images, self._masks = images, masks
         if state:
-            schedule = dict(state["schedule"], best=state["schedule"]["best"] or math.inf)
-            self.schedule = MaterialSchedule(**schedule)
+            best = state["schedule"]["best"]
+            self.schedule = MaterialSchedule(**dict(state["schedule"], best=math.inf if best is None else best))
             self.settings = replace(self.settings, iterations=int(state["iterations"]))
 
     def report(self) -> dict:
