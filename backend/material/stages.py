@@ -288,24 +288,22 @@ def highlight_masks(renderer, images, weights, material: MeshColorMaterial, thre
 
 
 def fit_constants(renderer, images, weights, material: MeshColorMaterial, settings: FitSettings | None = None,
-                  emit=None) -> FitResult:
-    """Stage 1: one albedo, specular and roughness per material."""
+                  emit=None, names: tuple[str, ...] | None = None, stage: str = "constant") -> FitResult:
+    """Stage 1: one albedo, specular and roughness per material (or only the ``names`` channels,
+    the others held)."""
     settings = settings or FitSettings()
-    for name in material.CHANNELS:
+    names = tuple(material.CHANNELS) if names is None else names
+    for name in names:
         material.make_constant(name)
     weights = silhouette_weights(_weights(weights, images), settings.edge_erosion)
-    return fit(renderer, images, weights, material, list(material.CHANNELS), settings, stage="constant", emit=emit)
+    return fit(renderer, images, weights, material, list(names), settings, stage=stage, emit=emit)
 
 
 def fit_lobe(renderer, images, weights, material: MeshColorMaterial, settings: FitSettings | None = None,
              emit=None) -> FitResult:
-    """The specular lobe's constants (specular and roughness per material) with the albedo held:
-    the constant stage for a lobe turned on after the albedo was fitted without it."""
-    settings = settings or FitSettings()
-    for name in ("specular", "roughness"):
-        material.make_constant(name)
-    weights = silhouette_weights(_weights(weights, images), settings.edge_erosion)
-    return fit(renderer, images, weights, material, ["specular", "roughness"], settings, stage="lobe", emit=emit)
+    """The specular lobe's constants with the albedo held: the constant stage for a lobe turned
+    on after the albedo was fitted without it."""
+    return fit_constants(renderer, images, weights, material, settings, emit, ("specular", "roughness"), "lobe")
 
 
 def fit_diffuse(renderer, images, weights, material: MeshColorMaterial, settings: FitSettings | None = None,

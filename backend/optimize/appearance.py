@@ -133,7 +133,7 @@ class Appearance:
         if not self.decision.specular:
             self.specular_off = self.specular_off or "specular" in material.trainable
             _disable_specular(material)
-        elif self.specular_off:  # highlights found after a diffuse-only decision: the lobe restarts
+        elif lobe_on:  # highlights found after a diffuse-only decision: the lobe restarts
             _restart_specular(material)
             self.specular_off = False
         seconds = time.perf_counter() - start
