@@ -55,6 +55,7 @@ def main(argv: list[str] | None = None) -> int:
     if not getattr(args, "func", None):
         parser.print_help()
         return 0 if not argv else EXIT_BAD_INPUT
+    args.argv = argv  # the command line as given (reconstruct records it for a later resume)
     try:
         return int(args.func(args) or 0)
     except InputError as err:

@@ -1,6 +1,8 @@
 """Reconstruct: the backend refines mesh and material in its own process while the newest
-snapshot streams into the "Reconstruction" object."""
+snapshot streams into the "Reconstruction" object. Resume continues an unfinished run
+(cancelled, or ended by a crash) from its last snapshot with the options it started with."""
 
+import json
 import shlex
 import time
 from pathlib import Path
@@ -22,6 +24,54 @@ def reconstruct_args(capture: Path, run: Path, preset: str | None, extra: str = 
     except ValueError as err:
         raise AddonInputError(None, f"extra arguments: {err}", "fix the quoting") from err
     return ["reconstruct", str(capture), "--out", str(run), *(["--preset", preset] if preset else []), *options]
+
+
+def resume_args(run: Path) -> list[str]:
+    """The command line that continues ``run``: the one recorded in RUN/command.json
+    (docs/protocol.md) with ``--resume`` instead of ``--overwrite``."""
+    require((run / "state" / "state.json").is_file(), run, "nothing to resume (no saved state)",
+            "start a new reconstruction")
+    require(not (run / "report.json").is_file(), run, "the run has already finished", "start a new reconstruction")
+    try:
+        argv = json.loads((run / "command.json").read_text())["argv"]
+    except (OSError, ValueError, KeyError, TypeError) as err:
+        raise AddonInputError(run / "command.json", "cannot read the run's command line",
+                              "resume it from a terminal: python -m backend reconstruct CAPTURE --out RUN "
+                              "--resume with its options") from err
+    return [a for a in argv if a != "--overwrite"] + ["--resume"]
+
+
+def resumable(run_dir: str) -> bool:
+    run = abspath(run_dir) if run_dir else None
+    return bool(run and (run / "state" / "state.json").is_file() and (run / "command.json").is_file()
+                and not (run / "report.json").is_file())
+
+
+def _start_job(context, args: list[str], run: Path, object_name: str) -> jobs.ReconstructJob:
+    python = backend_python(context)
+    try:
+        return jobs.ReconstructJob(python, args, run, object_name)
+    except OSError as err:
+        raise AddonInputError(python, f"cannot start the backend ({err.strerror})",
+                              "choose the backend Python in the add-on preferences") from err
+
+
+def _report_end(operator, context, job: jobs.ReconstructJob) -> set[str]:
+    state = job.state
+    changed = job.applied is not None
+    if changed:
+        context.scene.sft.run_dir = str(job.run_dir)
+    if state.status == progress.DONE:
+        metrics = state.done.get("metrics") or {}
+        shown = ", ".join(f"{k} {v:.4g}" for k, v in metrics.items() if isinstance(v, (int, float)))
+        operator.report({"INFO"}, f"reconstruction done in {progress.format_duration(state.elapsed())}"
+                                  + (f": {shown}" if shown else ""))
+    elif state.status == progress.CANCELLED:
+        operator.report({"WARNING"}, "reconstruction cancelled; the last snapshot is kept (Resume continues it)"
+                        if changed else "reconstruction cancelled before its first snapshot")
+    else:
+        operator.report({"ERROR"}, f"reconstruction failed: {state.message}")
+    return {"FINISHED"} if changed else {"CANCELLED"}
 
 
 class SFT_OT_reconstruct(JobModal, bpy.types.Operator):
@@ -55,29 +105,40 @@ class SFT_OT_reconstruct(JobModal, bpy.types.Operator):
         args = reconstruct_args(capture, run, preset, sft.extra_args)
         if preset is None:
             self.report({"WARNING"}, "the backend's reconstruct has no --preset option: it runs with its defaults")
-        try:
-            job = jobs.ReconstructJob(python, args, run, self.object_name)
-        except OSError as err:
-            raise AddonInputError(python, f"cannot start the backend ({err.strerror})",
-                                  "choose the backend Python in the add-on preferences") from err
-        return job
+        return _start_job(context, args, run, self.object_name)
 
     def finish(self, context, job: jobs.ReconstructJob):
-        state = job.state
-        changed = job.applied is not None
-        if changed:
-            context.scene.sft.run_dir = str(job.run_dir)
-        if state.status == progress.DONE:
-            metrics = state.done.get("metrics") or {}
-            shown = ", ".join(f"{k} {v:.4g}" for k, v in metrics.items() if isinstance(v, (int, float)))
-            self.report({"INFO"}, f"reconstruction done in {progress.format_duration(state.elapsed())}"
-                                  + (f": {shown}" if shown else ""))
-        elif state.status == progress.CANCELLED:
-            self.report({"WARNING"}, "reconstruction cancelled; the last snapshot is kept"
-                        if changed else "reconstruction cancelled before its first snapshot")
-        else:
-            self.report({"ERROR"}, f"reconstruction failed: {state.message}")
-        return {"FINISHED"} if changed else {"CANCELLED"}
+        return _report_end(self, context, job)
+
+
+class SFT_OT_reconstruct_resume(JobModal, bpy.types.Operator):
+    """Continue an unfinished reconstruction (cancelled or crashed) from its last snapshot,
+    with the options it started with"""
+
+    bl_idname = "sft.reconstruct_resume"
+    bl_label = "Resume"
+    bl_options = {"REGISTER", "UNDO"}
+
+    job_kind = "reconstruct"
+
+    run_dir: StringProperty(name="Run Folder", subtype="DIR_PATH", default="",
+                            description="Run folder to continue (empty: the scene's last run)")
+    object_name: StringProperty(name="Object", default=scene_mesh.OBJECT_NAME,
+                                description="Object that shows the evolving mesh")
+
+    @classmethod
+    def poll(cls, context):
+        job = jobs.ACTIVE.get("reconstruct")
+        return not (job is not None and job.running)
+
+    def start(self, context) -> jobs.Job:
+        chosen = self.run_dir or context.scene.sft.run_dir
+        require(bool(chosen), None, "no run folder to resume", "reconstruct first, or give the run folder")
+        run = abspath(chosen)
+        return _start_job(context, resume_args(run), run, self.object_name)
+
+    def finish(self, context, job: jobs.ReconstructJob):
+        return _report_end(self, context, job)
 
 
 class SFT_OT_reconstruct_cancel(bpy.types.Operator):
@@ -97,4 +158,4 @@ class SFT_OT_reconstruct_cancel(bpy.types.Operator):
         return {"FINISHED"}
 
 
-CLASSES = (SFT_OT_reconstruct, SFT_OT_reconstruct_cancel)
+CLASSES = (SFT_OT_reconstruct, SFT_OT_reconstruct_resume, SFT_OT_reconstruct_cancel)

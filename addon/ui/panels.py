@@ -5,6 +5,7 @@ from pathlib import Path
 import bpy
 
 from .. import frames, jobs, presets, progress, scene_cameras, scene_mesh
+from ..operators import reconstruct
 
 CATEGORY = "Shape from Tracing"
 
@@ -95,7 +96,10 @@ class SFT_PT_reconstruct(_Panel, bpy.types.Panel):
                       icon="RADIOBUT_ON" if key == sft.preset else "RADIOBUT_OFF")
         col.prop(sft, "extra_args")
         if not running:
-            layout.operator("sft.reconstruct", icon="PLAY")
+            row = layout.row(align=True)
+            row.operator("sft.reconstruct", icon="PLAY")
+            if reconstruct.resumable(sft.run_dir):
+                row.operator("sft.reconstruct_resume", icon="FILE_REFRESH")
         _draw_job(layout, job, cancel="sft.reconstruct_cancel")
         obj = bpy.data.objects.get(scene_mesh.OBJECT_NAME)
         if obj is not None and obj.type == "MESH" and obj.data.polygons:

@@ -154,6 +154,8 @@ def run(args) -> int:
     if capture is not None:
         Appearance.check(capture, config)
     folder = RunFolder.create(args.out, resume=args.resume, overwrite=args.overwrite)
+    if not args.resume and getattr(args, "argv", None):
+        folder.record_command(args.argv)
     emit = Emitter(log_path=folder.events)
     try:
         emit("start", run=str(folder.path), capture=str(args.capture), settings=dataclasses.asdict(config))

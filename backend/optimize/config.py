@@ -61,6 +61,7 @@ class ReconstructConfig:
     remesh: str = "auto"
     remesh_threshold: float = 0.002
     # output
-    snapshot_every_s: float = 1.0  # the add-on streams at least one update per second
+    snapshot_every_s: float = 1.0  # the add-on streams an update every second...
+    snapshot_share: float = 0.05  # ...or less often, so that writing snapshots takes at most this share of the time
     track_metrics: bool = False  # metrics after every level (time excluded from the budget)
 

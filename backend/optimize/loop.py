@@ -59,6 +59,7 @@ class Reconstruction:
         self.timings: dict[str, float] = {}
         self.init_info: dict = {}
         self.last_snapshot = 0.0
+        self.snapshot_seconds = 0.0  # what the last snapshot took to write
         self.viewset = ViewSet(capture, config.max_size)
         self.appearance = Appearance(capture, config, emit)
         self.truth = self._truth()
@@ -332,7 +333,7 @@ class Reconstruction:
                             break
                         opt.lr *= 0.5
                         plateau.stale = 0
-                if time.perf_counter() - self.last_snapshot >= c.snapshot_every_s:
+                if time.perf_counter() - self.last_snapshot >= self._snapshot_interval():
                     self.mesh = Mesh(vertices, self.mesh.faces)
                     self._snapshot(loss=loss)
         finally:
@@ -417,6 +418,12 @@ class Reconstruction:
                 "budget": self.budget.state(), "levels": self.levels, "skipped": self.skipped, "timings": self.timings,
                 "init": self.init_info, "seconds": round(self.elapsed(), 3), "appearance": self.appearance.state()}
 
+    def _snapshot_interval(self) -> float:
+        """Seconds between snapshots: snapshot_every_s, stretched so that writing them (display
+        mesh and resumable state, ~0.3 s at 30k faces) takes at most snapshot_share of the run."""
+        c = self.config
+        return max(c.snapshot_every_s, self.snapshot_seconds / c.snapshot_share if c.snapshot_share > 0 else 0.0)
+
     def _snapshot(self, loss) -> str:
         start = time.perf_counter()
         info = {"iteration": self.iteration, "stage": self.phase, "level": self.level,
@@ -424,6 +431,7 @@ class Reconstruction:
         rel = self.folder.snapshot(self.material.display(self.mesh), info, self._state(), self.material)
         self.emit("snapshot", path=rel, iteration=self.iteration, faces=self.mesh.n_faces, loss=loss)
         self.last_snapshot = time.perf_counter()
+        self.snapshot_seconds = self.last_snapshot - start
         self._timed("snapshots", start)
         return rel
 

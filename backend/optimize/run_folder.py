@@ -41,11 +41,18 @@ class RunFolder:
             for name in ("snapshots", "state"):
                 for f in sorted((path / name).glob("*")) if (path / name).is_dir() else []:
                     f.unlink()
-            for name in ("events.jsonl", "snapshot.json", "result.ply", "report.json", "STOP"):
+            for name in ("events.jsonl", "snapshot.json", "result.ply", "report.json", "STOP", cls.COMMAND):
                 (path / name).unlink(missing_ok=True)
         path.mkdir(parents=True, exist_ok=True)
         (path / "STOP").unlink(missing_ok=True)
         return cls(path)
+
+    COMMAND = "command.json"
+
+    def record_command(self, argv: list[str]) -> None:
+        """Keep the command line that started the run (``RUN/command.json``), so a client can
+        resume it with the same options."""
+        fsio.write_json(self.path / self.COMMAND, {"argv": [str(a) for a in argv]})
 
     @property
     def events(self) -> Path:

@@ -8,6 +8,7 @@ import json
 import subprocess
 import sys
 import time
+from importlib import import_module
 
 import bpy
 import numpy as np
@@ -40,8 +41,6 @@ def _arrays(obj):
 
 
 def _job(addon, extension, capture, run):
-    from importlib import import_module
-
     args = import_module(f"{extension.__name__}.addon.operators.reconstruct").reconstruct_args(
         capture, run, None, TINY)
     return addon.jobs.ReconstructJob(sys.executable, args, run, "Reconstruction")
@@ -91,6 +90,42 @@ def test_cancel_keeps_last_snapshot(context, addon, extension, tiny_capture, tmp
     assert (run / snapshot["mesh"]).is_file() and (run / "STOP").exists()
     assert len(bpy.data.objects["Reconstruction"].data.polygons) > 0
     assert job.process.events[-1]["event"] == "cancelled"
+
+
+@needs_reconstruct
+def test_resume_continues_a_cancelled_run_with_its_options(context, addon, extension, tiny_capture, tmp_path):
+    """Resume (the panel's button) continues a cancelled run from its last snapshot with the
+    command line it started with (RUN/command.json), and is offered only while unfinished."""
+    run = tmp_path / "run"
+    job = _job(addon, extension, tiny_capture, run)
+    start = time.monotonic()
+    while job.applied is None:
+        assert job.step(context), f"finished before a snapshot: {job.state.message}"
+        assert time.monotonic() - start < 300
+        time.sleep(0.1)
+    job.stop()
+    job.run_blocking(context)
+    assert job.state.status == "cancelled"
+    context.scene.sft.run_dir = str(run)
+    resumable = import_module(f"{extension.__name__}.addon.operators.reconstruct").resumable
+    assert resumable(str(run))
+    assert bpy.ops.sft.reconstruct_resume() == {"FINISHED"}
+    assert (run / "result.ply").is_file() and not (run / "STOP").exists()
+    events = [json.loads(line) for line in (run / "events.jsonl").read_text().splitlines()]
+    starts = [e["settings"] for e in events if e["event"] == "start"]
+    assert len(starts) == 2 and starts[0] == starts[1], "the resumed run changed its options"
+    assert any(e["event"] == "stage" and e["stage"] == "resume" for e in events)
+    assert events[-1]["event"] == "done"
+    assert not resumable(str(run)), "a finished run is still offered for resuming"
+
+
+def test_resume_refuses_a_folder_without_a_run(context, tmp_path):
+    (tmp_path / "state").mkdir()
+    (tmp_path / "state" / "state.json").write_text("{}")
+    with pytest.raises(RuntimeError, match="cannot read the run's command line"):
+        bpy.ops.sft.reconstruct_resume(run_dir=str(tmp_path))
+    with pytest.raises(RuntimeError, match="nothing to resume"):
+        bpy.ops.sft.reconstruct_resume(run_dir=str(tmp_path / "empty"))
 
 
 def _headless(*args, timeout=600):

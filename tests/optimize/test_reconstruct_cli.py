@@ -98,6 +98,24 @@ def test_reconstruct_end_to_end(capture, tmp_path):
     assert report["metrics"]["f1@0.01"] > report["init"]["metrics"]["f1@0.01"]
     assert report["skipped_steps"] == 0 and report["settings"]["seed"] == 0
     assert set(report["timings"]) >= {"init", "geometry", "total"}
+    assert json.loads((run / "command.json").read_text())["argv"][:2] == ["reconstruct", str(capture)]
+
+
+def test_snapshots_thin_out_when_writing_them_is_slow():
+    """Snapshots come every snapshot_every_s, or less often so that writing them (0.6 s at
+    30k faces) takes at most snapshot_share of the run."""
+    from types import SimpleNamespace
+
+    from backend import variant
+
+    variant.choose(None)
+    from backend.optimize.loop import Reconstruction
+
+    config = ReconstructConfig()
+    run = SimpleNamespace(config=config, snapshot_seconds=0.01)
+    assert Reconstruction._snapshot_interval(run) == config.snapshot_every_s
+    run.snapshot_seconds = 0.6
+    assert Reconstruction._snapshot_interval(run) == pytest.approx(0.6 / config.snapshot_share)
 
 
 def test_time_budget_picks_the_calibrated_preset_and_stops_on_time(capture, tmp_path):
