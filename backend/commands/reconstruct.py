@@ -15,7 +15,7 @@ from types import SimpleNamespace
 from .. import variant
 from ..errors import InputError, require
 from ..events import Emitter
-from ..optimize.config import ReconstructConfig
+from ..optimize.config import STAGED_FACE_GROWTH, ReconstructConfig
 from ..optimize.presets import DEFAULT, PRESETS, calibrated, preset_for_budget
 
 INIT_HELP = "carve (visual hull; default with masks), sphere, box, spheres (sphere cloud), points (SfM + Poisson), or a mesh file"
@@ -65,7 +65,8 @@ def add_arguments(parser):
     parser.add_argument("--initial-faces", type=int, help=f"faces of the initial mesh ({d.initial_faces})")
     parser.add_argument("--face-growth", type=float, metavar="F",
                         help="multiply the face budget by F (> 1) after each simplification instead of adding half "
-                             "the initial face count (the paper's rule): more faces sooner, for finely detailed objects")
+                             "the initial face count (the paper's rule): more faces sooner, for finely detailed objects "
+                             f"(default: the paper's rule; x{STAGED_FACE_GROWTH} with --material staged)")
     parser.add_argument("--max-levels", type=int, help=f"most coarse-to-fine levels ({d.max_levels})")
     parser.add_argument("--level-iterations", type=int, help=f"most steps per level ({d.level_iterations})")
     parser.add_argument("--step", type=float,
@@ -111,6 +112,8 @@ def config_from_args(args) -> ReconstructConfig:
         values["time_budget_s"] = 60.0 * args.time_budget
     config = ReconstructConfig(**values)
     config.coarse_size = min(config.coarse_size, config.max_size)
+    if config.face_growth is None and config.material == "staged":
+        config.face_growth = STAGED_FACE_GROWTH
     return config
 
 

@@ -264,3 +264,17 @@ def test_existing_run_folder_needs_resume_or_overwrite(capture, tmp_path):
     assert proc.returncode == 2 and "--resume" in proc.stderr
     proc = run_cli("reconstruct", capture, "--out", tmp_path / "new", "--resume", *FAST, "--iterations", 5)
     assert proc.returncode == 2 and "nothing to resume" in proc.stderr
+
+
+def test_staged_material_runs_grow_faces_faster_unless_told_otherwise():
+    from backend.cli import build_parser
+    from backend.commands.reconstruct import config_from_args
+    from backend.optimize.config import STAGED_FACE_GROWTH
+
+    def config(*options):
+        argv = ["reconstruct", "capture", "--out", "run", *options]
+        return config_from_args(build_parser(argv).parse_args(argv))
+
+    assert config().face_growth is None  # the paper's rule
+    assert config("--material", "staged").face_growth == STAGED_FACE_GROWTH
+    assert config("--material", "staged", "--face-growth", "1.2").face_growth == 1.2
