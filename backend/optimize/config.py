@@ -7,8 +7,8 @@ from dataclasses import dataclass
 # Mesh colors tie the texture's resolution to the mesh, and the smooth-shaded specular lobe shows
 # every facet of the surface, so a staged run grows faces faster than the paper's rule. The
 # true dragon simplified to 17.5k faces scores 30.1 dB under its true material, at 35k 34.5 dB;
-# two 20-minute dragon runs at x1.5 (33.75k faces) scored 29.6 and 30.0 dB, one at +2.5k a
-# level (17.5k faces) 29.1 dB (bench material --table).
+# three 20-minute dragon runs at x1.5 (33.75k to 75.9k faces) scored 29.6, 30.0 and 30.2 dB,
+# one on the paper's rule (17.5k faces) 29.1 dB (bench material --table, README).
 STAGED_FACE_GROWTH = 1.5
 
 
