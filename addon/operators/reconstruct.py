@@ -47,34 +47,41 @@ def resumable(run_dir: str) -> bool:
                 and not (run / "report.json").is_file())
 
 
-def _start_job(context, args: list[str], run: Path, object_name: str) -> jobs.ReconstructJob:
-    python = backend_python(context)
-    try:
-        return jobs.ReconstructJob(python, args, run, object_name)
-    except OSError as err:
-        raise AddonInputError(python, f"cannot start the backend ({err.strerror})",
-                              "choose the backend Python in the add-on preferences") from err
+class _ReconstructModal(JobModal):
+    """What Reconstruct and Resume share: the job, the object it streams into, the report."""
 
+    job_kind = "reconstruct"
 
-def _report_end(operator, context, job: jobs.ReconstructJob) -> set[str]:
-    state = job.state
-    changed = job.applied is not None
-    if changed:
-        context.scene.sft.run_dir = str(job.run_dir)
-    if state.status == progress.DONE:
-        metrics = state.done.get("metrics") or {}
-        shown = ", ".join(f"{k} {v:.4g}" for k, v in metrics.items() if isinstance(v, (int, float)))
-        operator.report({"INFO"}, f"reconstruction done in {progress.format_duration(state.elapsed())}"
+    object_name: StringProperty(name="Object", default=scene_mesh.OBJECT_NAME,
+                                description="Object that shows the evolving mesh")
+
+    def launch(self, context, args: list[str], run: Path) -> jobs.ReconstructJob:
+        python = backend_python(context)
+        try:
+            return jobs.ReconstructJob(python, args, run, self.object_name)
+        except OSError as err:
+            raise AddonInputError(python, f"cannot start the backend ({err.strerror})",
+                                  "choose the backend Python in the add-on preferences") from err
+
+    def finish(self, context, job: jobs.ReconstructJob):
+        state = job.state
+        changed = job.applied is not None
+        if changed:
+            context.scene.sft.run_dir = str(job.run_dir)
+        if state.status == progress.DONE:
+            metrics = state.done.get("metrics") or {}
+            shown = ", ".join(f"{k} {v:.4g}" for k, v in metrics.items() if isinstance(v, (int, float)))
+            self.report({"INFO"}, f"reconstruction done in {progress.format_duration(state.elapsed())}"
                                   + (f": {shown}" if shown else ""))
-    elif state.status == progress.CANCELLED:
-        operator.report({"WARNING"}, "reconstruction cancelled; the last snapshot is kept (Resume continues it)"
+        elif state.status == progress.CANCELLED:
+            self.report({"WARNING"}, "reconstruction cancelled; the last snapshot is kept (Resume continues it)"
                         if changed else "reconstruction cancelled before its first snapshot")
-    else:
-        operator.report({"ERROR"}, f"reconstruction failed: {state.message}")
-    return {"FINISHED"} if changed else {"CANCELLED"}
+        else:
+            self.report({"ERROR"}, f"reconstruction failed: {state.message}")
+        return {"FINISHED"} if changed else {"CANCELLED"}
 
 
-class SFT_OT_reconstruct(JobModal, bpy.types.Operator):
+class SFT_OT_reconstruct(_ReconstructModal, bpy.types.Operator):
     """Reconstruct shape and material in a background process; the mesh updates live.
     Esc or Cancel stops it cleanly and keeps the last snapshot"""
 
@@ -82,14 +89,10 @@ class SFT_OT_reconstruct(JobModal, bpy.types.Operator):
     bl_label = "Reconstruct"
     bl_options = {"REGISTER", "UNDO"}
 
-    job_kind = "reconstruct"
-
     capture_dir: StringProperty(name="Capture", subtype="DIR_PATH", default="",
                                 description="Capture folder (empty: the scene's)")
     run_dir: StringProperty(name="Run Folder", subtype="DIR_PATH", default="",
                             description="Output folder (empty: <capture>/runs/<date-time>)")
-    object_name: StringProperty(name="Object", default=scene_mesh.OBJECT_NAME,
-                                description="Object that shows the evolving mesh")
 
     def start(self, context) -> jobs.Job:
         capture = capture_dir(context, self.capture_dir)
@@ -105,13 +108,10 @@ class SFT_OT_reconstruct(JobModal, bpy.types.Operator):
         args = reconstruct_args(capture, run, preset, sft.extra_args)
         if preset is None:
             self.report({"WARNING"}, "the backend's reconstruct has no --preset option: it runs with its defaults")
-        return _start_job(context, args, run, self.object_name)
-
-    def finish(self, context, job: jobs.ReconstructJob):
-        return _report_end(self, context, job)
+        return self.launch(context, args, run)
 
 
-class SFT_OT_reconstruct_resume(JobModal, bpy.types.Operator):
+class SFT_OT_reconstruct_resume(_ReconstructModal, bpy.types.Operator):
     """Continue an unfinished reconstruction (cancelled or crashed) from its last snapshot,
     with the options it started with"""
 
@@ -119,12 +119,8 @@ class SFT_OT_reconstruct_resume(JobModal, bpy.types.Operator):
     bl_label = "Resume"
     bl_options = {"REGISTER", "UNDO"}
 
-    job_kind = "reconstruct"
-
     run_dir: StringProperty(name="Run Folder", subtype="DIR_PATH", default="",
                             description="Run folder to continue (empty: the scene's last run)")
-    object_name: StringProperty(name="Object", default=scene_mesh.OBJECT_NAME,
-                                description="Object that shows the evolving mesh")
 
     @classmethod
     def poll(cls, context):
@@ -135,10 +131,7 @@ class SFT_OT_reconstruct_resume(JobModal, bpy.types.Operator):
         chosen = self.run_dir or context.scene.sft.run_dir
         require(bool(chosen), None, "no run folder to resume", "reconstruct first, or give the run folder")
         run = abspath(chosen)
-        return _start_job(context, resume_args(run), run, self.object_name)
-
-    def finish(self, context, job: jobs.ReconstructJob):
-        return _report_end(self, context, job)
+        return self.launch(context, resume_args(run), run)
 
 
 class SFT_OT_reconstruct_cancel(bpy.types.Operator):

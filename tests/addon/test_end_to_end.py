@@ -40,6 +40,16 @@ def _job(addon, extension, capture, run):
     return addon.jobs.ReconstructJob(sys.executable, args, run, "Reconstruction")
 
 
+def _cancel_after_first_snapshot(context, job):
+    start = time.monotonic()
+    while job.applied is None:
+        assert job.step(context), f"finished before a snapshot: {job.state.message}"
+        assert time.monotonic() - start < 300
+        time.sleep(0.1)
+    job.stop()
+    job.run_blocking(context)
+
+
 def test_real_reconstruction_streams_mesh_and_colours(context, addon, extension, tiny_capture, tmp_path):
     job = _job(addon, extension, tiny_capture, tmp_path / "run")
     shown, start = [], time.monotonic()
@@ -69,13 +79,7 @@ def test_reconstruct_operator_runs_headless_path(context, tiny_capture, tmp_path
 def test_cancel_keeps_last_snapshot(context, addon, extension, tiny_capture, tmp_path):
     run = tmp_path / "run"
     job = _job(addon, extension, tiny_capture, run)
-    start = time.monotonic()
-    while job.applied is None:
-        assert job.step(context), f"finished before a snapshot: {job.state.message}"
-        assert time.monotonic() - start < 300
-        time.sleep(0.1)
-    job.stop()
-    job.run_blocking(context)
+    _cancel_after_first_snapshot(context, job)
     assert job.state.status == "cancelled" and job.process.returncode == 130
     snapshot = json.loads((run / "snapshot.json").read_text())
     assert (run / snapshot["mesh"]).is_file() and (run / "STOP").exists()
@@ -88,13 +92,7 @@ def test_resume_continues_a_cancelled_run_with_its_options(context, addon, exten
     command line it started with (RUN/command.json), and is offered only while unfinished."""
     run = tmp_path / "run"
     job = _job(addon, extension, tiny_capture, run)
-    start = time.monotonic()
-    while job.applied is None:
-        assert job.step(context), f"finished before a snapshot: {job.state.message}"
-        assert time.monotonic() - start < 300
-        time.sleep(0.1)
-    job.stop()
-    job.run_blocking(context)
+    _cancel_after_first_snapshot(context, job)
     assert job.state.status == "cancelled"
     context.scene.sft.run_dir = str(run)
     resumable = import_module(f"{extension.__name__}.addon.operators.reconstruct").resumable

@@ -73,6 +73,20 @@ def test_panels_draw_in_an_empty_scene(context):
     assert labels == [f"{title}: {expected_cost(key)}" for key, title in
                       (("draft", "Draft"), ("balanced", "Balanced"), ("final", "Final"))]
     assert ("operator", "sft.relit_preview", True) in log["SFT_PT_preview"]
+    assert not any(e[:2] == ("operator", "sft.reconstruct_resume") for e in log["SFT_PT_reconstruct"])
+
+
+def test_reconstruct_panel_offers_resume_for_an_unfinished_run(context, tmp_path):
+    (tmp_path / "state").mkdir()
+    (tmp_path / "state" / "state.json").write_text("{}")
+    (tmp_path / "command.json").write_text('{"argv": ["reconstruct", "c", "--out", "r"]}')
+    context.scene.sft.run_dir = str(tmp_path)
+    try:
+        assert ("operator", "sft.reconstruct_resume", True) in draw("SFT_PT_reconstruct", context)
+        (tmp_path / "report.json").write_text("{}")  # finished: nothing to resume
+        assert not any(e[:2] == ("operator", "sft.reconstruct_resume") for e in draw("SFT_PT_reconstruct", context))
+    finally:
+        context.scene.sft.run_dir = ""
 
 
 def test_reconstruct_panel_shows_progress_and_cancel(context, addon, tmp_path):
