@@ -237,14 +237,17 @@ class Reconstruction:
 
     def _finish_materials(self, most: int = 12) -> None:
         """Once geometry has converged: material stages until their schedule ends."""
-        views = self.viewset.at(self.config.max_size)
+        c = self.config
+        views = self.viewset.at(c.max_size)
         self.appearance.finalise()
+        last = 0.0  # seconds of the last cycle: one that would end past the budget is not begun
         for _ in range(most):
-            if self._out_of_budget():
+            if self._out_of_budget() or (c.time_budget_s and self.elapsed() + last > c.time_budget_s):
                 break
             result = self.appearance.material_cycle(self.mesh, self.material, views, self.level)
             if result is None:
                 break
+            last = result["seconds"]
             self.levels[-1].setdefault("material", []).append(result)
             self._snapshot(loss=result["loss"])
 
