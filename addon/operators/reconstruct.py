@@ -42,9 +42,14 @@ def resume_args(run: Path) -> list[str]:
 
 
 def resumable(run_dir: str) -> bool:
-    run = abspath(run_dir) if run_dir else None
-    return bool(run and (run / "state" / "state.json").is_file() and (run / "command.json").is_file()
-                and not (run / "report.json").is_file())
+    """Whether Resume can continue ``run_dir`` (the checks of :func:`resume_args`)."""
+    if not run_dir:
+        return False
+    try:
+        resume_args(abspath(run_dir))
+    except AddonInputError:
+        return False
+    return True
 
 
 class _ReconstructModal(JobModal):
