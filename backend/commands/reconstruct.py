@@ -140,6 +140,30 @@ def video_capture(inputs, folder, resume: bool, emit):
     return load_capture(path)
 
 
+PATH_OPTIONS = ("--out", "--masks", "--env", "--init")
+
+
+def absolute_paths(argv: list[str], args) -> list[str]:
+    """``argv`` with the capture and the path options made absolute, so the recorded command
+    resumes from any working folder (``--init`` only when it names an existing file)."""
+    out, previous = [], None
+    for token in argv:
+        option, eq, value = token.partition("=")
+        if eq and option in PATH_OPTIONS:
+            token = f"{option}={_absolute(option, value)}"
+        elif previous in PATH_OPTIONS:
+            token = _absolute(previous, token)
+        elif not token.startswith("-") and Path(token) == args.capture:
+            token = os.path.abspath(token)
+        out.append(token)
+        previous = token
+    return out
+
+
+def _absolute(option: str, value: str) -> str:
+    return value if option == "--init" and not Path(value).is_file() else os.path.abspath(value)
+
+
 def run(args) -> int:
     import dataclasses
 
@@ -158,7 +182,7 @@ def run(args) -> int:
         Appearance.check(capture, config)
     folder = RunFolder.create(args.out, resume=args.resume, overwrite=args.overwrite)
     if not args.resume and getattr(args, "argv", None):
-        folder.record_command(args.argv)
+        folder.record_command(absolute_paths(args.argv, args))
     emit = Emitter(log_path=folder.events)
     try:
         emit("start", run=str(folder.path), capture=str(args.capture), settings=dataclasses.asdict(config))

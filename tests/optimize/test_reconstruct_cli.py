@@ -278,3 +278,20 @@ def test_staged_material_runs_grow_faces_faster_unless_told_otherwise():
     assert config().face_growth is None  # the paper's rule
     assert config("--material", "staged").face_growth == STAGED_FACE_GROWTH
     assert config("--material", "staged", "--face-growth", "1.2").face_growth == 1.2
+
+
+def test_the_recorded_command_names_absolute_paths(tmp_path, monkeypatch):
+    """command.json must resume from any working folder (the add-on's is the repository)."""
+    from backend.cli import build_parser
+    from backend.commands.reconstruct import absolute_paths
+
+    (tmp_path / "start.ply").write_text("ply")
+    monkeypatch.chdir(tmp_path)
+    argv = ["reconstruct", "./cap/", "--out", "runs/a", "--masks=m", "--init", "start.ply", "--seed", "3",
+            "--time-budget", "5"]
+    recorded = absolute_paths(argv, build_parser(argv).parse_args(argv))
+    assert recorded == ["reconstruct", str(tmp_path / "cap"), "--out", str(tmp_path / "runs/a"),
+                        f"--masks={tmp_path / 'm'}", "--init", str(tmp_path / "start.ply"), "--seed", "3",
+                        "--time-budget", "5"]
+    argv = ["reconstruct", "cap", "--out", "r", "--init", "carve"]  # a method, not a file
+    assert absolute_paths(argv, build_parser(argv).parse_args(argv))[-1] == "carve"
