@@ -8,6 +8,7 @@ This is the swappable material model the reconstruction loop drives:
     material.parameters() / load_parameters(...)          # latent Dr.Jit leaves by channel
     material.on_subdivide(old_mesh, new_mesh)             # exact transfer (1 -> 4 midpoint split)
     material.on_remesh(new_mesh)                          # labels carried over, values to neutral grey
+    material.on_remesh(new_mesh, old_mesh, reset=False)  # ...or resampled (after simplification)
     material.display(mesh) -> Mesh                        # snapshot mesh (docs/protocol.md)
 """
 

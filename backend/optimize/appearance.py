@@ -158,11 +158,6 @@ class Appearance:
                 and "specular" not in self.overrides):
             self.decide(mesh, material, views, reason=f"level {level}: highlights measured on the refined geometry")
 
-    def on_simplify(self, material) -> None:
-        """Simplification restarted the material from neutral values: a diffuse-only decision holds."""
-        if self.decision is not None and not self.decision.specular:
-            _disable_specular(material)
-
     def geometry_settings(self, base: RenderSettings) -> RenderSettings:
         return base if self.decision is None else self.decision.settings(base, geometry=True)
 

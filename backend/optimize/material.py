@@ -129,7 +129,7 @@ class ConstantMaterial:
     def on_subdivide(self, old_mesh: Mesh, new_mesh: Mesh) -> None:
         pass  # constants do not depend on the mesh
 
-    def on_remesh(self, new_mesh: Mesh) -> None:
+    def on_remesh(self, new_mesh: Mesh, old_mesh: Mesh | None = None, reset: bool = True) -> None:
         pass
 
     def display(self, mesh: Mesh) -> Mesh:

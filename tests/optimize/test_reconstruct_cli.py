@@ -213,6 +213,21 @@ def test_a_staged_run_polishes_the_surface_under_the_fitted_material(capture, tm
     assert report["timings"]["polish"] > 0
 
 
+def test_simplification_carries_the_fitted_material_to_the_next_level(capture, tmp_path):
+    """Between levels the subdivided mesh is simplified to the face budget; its mesh colors
+    are resampled from the old surface (not reset to grey), so the next level starts from the
+    material the last one fitted."""
+    run = tmp_path / "run"
+    proc = run_cli("reconstruct", capture, "--out", run, *FAST, "--material", "staged", "--max-levels", 3,
+                   "--level-iterations", 40, "--remesh", "never", "--iterations", 150, timeout=600)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    levels = [lv for lv in json.loads((run / "report.json").read_text())["levels"] if not lv.get("polish")]
+    assert len(levels) == 3, levels
+    before, after = levels[1], levels[2]
+    assert before["size"] == after["size"] and before["faces"] < after["faces"] < 4 * before["faces"]  # simplified
+    assert after["loss_start"] < before["loss"] * 1.1, (before, after)
+
+
 def test_sigterm_cancels_cleanly(capture, tmp_path):
     run = tmp_path / "run"
     proc = start(capture, run, "--iterations", 200)
