@@ -215,7 +215,9 @@ def run_folder_problems(run: Path) -> list[str]:
         try:
             snap = json.loads((run / "snapshot.json").read_text())
             mesh = load_mesh(run / snap["mesh"])
-            if mesh.n_faces != snap["faces"] or not np.all(np.isfinite(mesh.vertices)):
+            # the display mesh splits every face r x r when mesh colors vary (docs/protocol.md)
+            split = round(math.sqrt(mesh.n_faces / max(snap["faces"], 1)))
+            if split < 1 or mesh.n_faces != snap["faces"] * split * split or not np.all(np.isfinite(mesh.vertices)):
                 problems.append(f"snapshot {snap['mesh']}: {mesh.n_faces} faces, {snap['faces']} stated, or not finite")
             values = [mesh.vertex_colors] + [mesh.attributes.get(k) for k in ("specular", "roughness")]
             if any(v is None or not np.all((v >= 0) & (v <= 1)) for v in values):

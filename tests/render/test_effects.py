@@ -245,17 +245,15 @@ def test_a_lobe_found_after_a_diffuse_only_decision_restarts_and_is_fitted(tmp_p
 
 
 def test_simplification_keeps_a_diffuse_only_decision(tmp_path):
-    """Simplifying restarts the material from neutral values (specular 0.1); a diffuse-only
-    decision is applied again, so geometry never trains under a lobe the effects ruled out."""
+    """Simplifying carries the material over (resampled), the diffuse-only model with it, so
+    geometry never trains under a lobe the effects ruled out."""
     from backend.geometry.simplify import simplify
 
     app, mesh, material, views = _staged_appearance(tmp_path, "--specular", 0, "--lighting", "env", "--env", "sky")
     app.decide(mesh, material, views, reason="initial mesh")
     assert not app.decision.specular, app.decision.reasons
     coarser = simplify(mesh, mesh.n_faces // 2)
-    material.on_remesh(coarser)
-    assert np.all(material.values("specular") > 0.05)  # the neutral restart
-    app.on_simplify(material)
+    material.on_remesh(coarser, old_mesh=mesh, reset=False)
     assert np.all(material.values("specular") < 1e-5) and "specular" not in material.trainable
     app.recheck(coarser, material, views, level=1)  # still diffuse: measured again, stays off
     assert not app.decision.specular and np.all(material.values("specular") < 1e-5)
