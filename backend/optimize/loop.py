@@ -4,8 +4,9 @@ A level optimises the vertices (Laplacian-preconditioned steps, several views pe
 fixed seeds) at one image size until the validation loss plateaus; steps are backtracked
 when the validation loss rises. Between levels the mesh is re-meshed (ray casting +
 screened Poisson; the material restarts from grey) when it has become inconsistent,
-subdivided 1-to-4 and simplified to the face budget (the material carried over). Levels continue until one stops improving (schedule.keeps_improving),
-the time budget or the iteration cap runs out, or a stop is requested."""
+subdivided 1-to-4 and simplified to the face budget (the material carried over). Levels
+continue until one stops improving (schedule.keeps_improving), the time budget or the
+iteration cap runs out, or a stop is requested."""
 
 from __future__ import annotations
 
