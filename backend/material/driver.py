@@ -6,6 +6,7 @@
     driver.cycle(renderer, images, masks, material, emit)    # one stage of the schedule
     driver.on_remesh(mesh, material, cameras)                # after a re-mesh (labels re-voted)
     driver.finalise()                                        # geometry converged: last, longer stages
+    driver.settle(renderer, images, masks, material)         # the end: keep the specular texture?
     driver.state() / driver.restore(state, images, masks)   # the schedule's position, for --resume
 
 ``driver.done`` tells when the material schedule has finished (the loss stopped improving
@@ -22,7 +23,7 @@ from ..capture.model import Camera, Capture
 from ..geometry.mesh import Mesh
 from .labels import FaceLabels, face_labels, load_material_labels
 from .model import MeshColorMaterial
-from .stages import FitResult, FitSettings, MaterialSchedule, fit_lobe, run_cycle
+from .stages import FitResult, FitSettings, MaterialSchedule, check_specular_texture, check_views, fit_lobe, run_cycle
 
 
 @dataclass
@@ -40,6 +41,7 @@ class MaterialDriver:
     polish_reserve: float = 0.05
     labels: FaceLabels | None = None
     results: list[FitResult] = field(default_factory=list)
+    specular_check: dict | None = None  # what settle() found
 
     def __post_init__(self):
         self.label_images = load_material_labels(self.capture)  # bad masks fail before any work
@@ -84,6 +86,15 @@ class MaterialDriver:
             self.schedule.finalise()
             self.settings = replace(self.settings, iterations=self.settings.iterations * iterations_scale)
 
+    def settle(self, renderer, images, masks, material: MeshColorMaterial) -> dict | None:
+        """The run's last material step: a specular texture stays only if it renders the views
+        its stage left out better than its mean (``check_specular_texture``)."""
+        views = check_views(len(images), self.settings.check_every)
+        if not views or material.channels["specular"].kind != "colors":
+            return None
+        self.specular_check = check_specular_texture(renderer, images, masks, material, views)
+        return self.specular_check
+
     def on_remesh(self, mesh: Mesh, material: MeshColorMaterial, cameras: list[Camera]) -> None:
         """Call after ``material.on_remesh(mesh)``: labels re-voted, the schedule restarts."""
         self.relabel(mesh, material, cameras)
@@ -108,7 +119,7 @@ class MaterialDriver:
         out = {"stages": [{"stage": r.stage, "iterations": len(r.losses), "loss": r.loss,
                            "seconds": round(r.seconds, 2), "highlight_share": r.highlight_share}
                           for r in self.results],
-               "schedule": self.schedule.history}
+               "schedule": self.schedule.history, "specular_check": self.specular_check}
         if self.labels is not None:
             out["labels"] = {"materials": self.labels.material_ids, "disagreement": self.labels.disagreement,
                              "votes": self.labels.votes, "unseen_faces": self.labels.unseen_faces}

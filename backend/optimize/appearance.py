@@ -96,6 +96,17 @@ class Appearance:
             diffuse_only = self.decision is not None and not self.decision.specular
             self.driver.schedule.refine("diffuse" if diffuse_only else "specular")
 
+    def settle(self, mesh, material, views, level: int) -> None:
+        """The run's end: a specular texture that the views left out of its fit do not support
+        becomes its per-material mean (``MaterialDriver.settle``)."""
+        if self.driver is None or material.channels["specular"].kind != "colors":
+            return
+        start = time.perf_counter()
+        self.emit("stage", stage="material:check", level=level, faces=mesh.n_faces)
+        renderer = self._renderer(mesh, material, views, geometry=False)
+        self.driver.settle(renderer, [v.target for v in views], self._masks(views), material)
+        self.seconds += time.perf_counter() - start
+
     def on_remesh(self, mesh, material, views) -> None:
         if self.driver is not None:
             self.driver.on_remesh(mesh, material, [v.camera for v in views])

@@ -201,6 +201,7 @@ class Reconstruction:
             self.phase = "polish"
         if self.phase == "polish":
             self._polish()
+        self.appearance.settle(self.mesh, self.material, self.viewset.at(c.max_size), self.level)
 
     def _polish(self) -> None:
         """The paper alternates geometry and material until the loss stops improving: once the

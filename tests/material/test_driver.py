@@ -69,6 +69,28 @@ def test_driver_labels_and_cycles(tmp_path):
     assert driver.settings.iterations == 80 and driver.schedule.final and driver.schedule.patience == 2
 
 
+def test_settle_keeps_a_specular_texture_only_with_views_left_out(tmp_path):
+    mesh, top, capture, images = two_material_capture(tmp_path)
+    cams = [f.camera for f in capture.frames]
+    masks = [np.asarray(Image.open(f.mask), np.float32) / 255 for f in capture.frames]
+    for every, checked in ((8, False), (2, True)):  # 6 views: none left out at 8, three at 2
+        driver = MaterialDriver(capture, resolution=1, settings=FitSettings(check_every=every))
+        material = driver.material(mesh, cams, images, masks)
+        renderer = SceneRenderer(mesh, material.field, cams, [f.lights for f in capture.frames], None,
+                                 RenderSettings(spp=8, max_depth=2, integrator="prb"))
+        assert driver.settle(renderer, images, masks, material) is None  # constant specular: nothing to test
+        material.make_spatial("specular")
+        rng = np.random.default_rng(1)
+        material.set_values("specular", np.clip(0.2 + rng.normal(0, 0.2, material.layout.n_samples), 0.01, 0.99))
+        check = driver.settle(renderer, images, masks, material)
+        assert (check is not None) == checked and driver.report()["specular_check"] == check
+        if checked:  # the truth's lobe is uniform (0.2): its noisy texture gives way to its mean
+            assert check["views"] == [1, 3, 5] and check["kept"] == "constant" and check["constant"] < check["colors"]
+            assert material.channels["specular"].kind == "constant"
+        else:
+            assert material.channels["specular"].kind == "colors"
+
+
 def test_driver_refuses_bad_masks_before_any_work(tmp_path):
     mesh, top, capture, images = two_material_capture(tmp_path)
     capture.frames[3].material_mask = None

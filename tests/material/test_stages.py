@@ -184,6 +184,71 @@ def test_a_stage_that_raises_the_loss_is_undone():
     assert not result.reverted and not np.allclose(start.values("albedo"), MeshColorMaterial(mesh, 1).values("albedo"))
 
 
+def ring_scene(lobe):
+    """16 views of the blob; ``lobe`` (sample heights -> specular) gives the truth's specular."""
+    mesh = procedural.blob(3)
+    cams = layout.orbit_cameras(layout.fibonacci_sphere(16), np.zeros(3), 0.6, 24)
+    lights = [layout.paper_lights(c, 2.0) for c in cams]
+    truth = scene()[3]
+    truth.make_spatial("specular")
+    truth.set_values("specular", lobe(truth.layout.sample_positions(mesh.vertices)[:, 2]))
+    images, weights = render_truth(mesh, cams, lights, truth)
+    return mesh, cams, lights, truth, images, weights
+
+
+def _renderer(mesh, material, cams, lights, spp=4):
+    return SceneRenderer(mesh, material.field, cams, lights, None, RenderSettings(spp=spp, max_depth=2, integrator="prb"))
+
+
+def test_specular_texture_is_kept_only_when_views_left_out_of_the_fit_show_it():
+    mesh, cams, lights, truth, images, weights = ring_scene(lambda z: np.where(z > np.median(z), 0.8, 0.05))
+    check = stages.check_views(len(cams), 8)
+    assert check == [4, 12] and stages.check_views(15, 8) == [] and stages.check_views(16, 0) == []
+    mean = float(truth.values("specular").mean())
+    uniform = MeshColorMaterial(mesh, 1)
+    for name in truth.CHANNELS:
+        uniform.set_values(name, truth.values(name), truth.channels[name].kind)
+    uniform.make_constant("specular")
+    plain = render_truth(mesh, cams, lights, uniform)[0]
+    # every view shows the textured lobe: the texture stays, value for value. Only the fitted
+    # views show it (the others show its mean): it made up for something they do not repeat
+    for targets, kept in ((images, "colors"), ([plain[v] if v in check else img for v, img in enumerate(images)],
+                                               "constant")):
+        material = MeshColorMaterial(mesh, 1)
+        for name in truth.CHANNELS:
+            material.set_values(name, truth.values(name), truth.channels[name].kind)
+        result = stages.check_specular_texture(_renderer(mesh, material, cams, lights, spp=16), targets, weights,
+                                               material, check)
+        assert result["kept"] == kept and result["views"] == check
+        assert material.channels["specular"].kind == kept
+        if kept == "colors":
+            assert result["colors"] < 0.8 * result["constant"]
+            np.testing.assert_allclose(material.values("specular"), truth.values("specular"), atol=1e-5)
+        else:
+            assert result["constant"] < 0.8 * result["colors"]
+            assert material.values("specular")[0, 0] == pytest.approx(mean, abs=0.05)
+
+
+def test_the_specular_stage_is_fitted_without_its_check_views():
+    mesh, cams, lights, truth, images, weights = ring_scene(lambda z: np.full_like(z, 0.4))
+    check = stages.check_views(len(cams), 8)
+    spoiled = [np.full_like(img, 5.0) if v in check else img for v, img in enumerate(images)]
+
+    def fit_losses(targets, check_every):
+        material = MeshColorMaterial(mesh, 1)
+        schedule = stages.MaterialSchedule()
+        schedule.stage = "specular"
+        result = stages.run_cycle(schedule, _renderer(mesh, material, cams, lights), targets, weights, material,
+                                  stages.FitSettings(iterations=16, check_every=check_every))
+        assert material.channels["specular"].kind == "colors" or result.reverted
+        return result.losses
+
+    # the fit's own losses never see the check views: spoiling them changes nothing, unless
+    # no views are left out (16 steps of one view each: every view is drawn once)
+    np.testing.assert_allclose(fit_losses(spoiled, 8), fit_losses(images, 8), rtol=1e-4)
+    assert sum(fit_losses(spoiled, 0)) > 5 * sum(fit_losses(images, 0))
+
+
 def test_silhouette_band_is_left_out_of_the_fit():
     # pixels in the band just inside each outline do not steer the material: corrupting them
     # leaves the fit unchanged, while corrupting pixels further inside changes it
