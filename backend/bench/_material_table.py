@@ -205,8 +205,27 @@ def evaluate(name: str, capture, run: Path, spec) -> dict:
             oracle = component_renders(mesh, truth_as_mesh_colors(mesh, fitted, truth).field, held.frames,
                                        components=("full",), **kw)["full"]
             entry["true_material_psnr"] = round(image_metrics(oracle, reference["full"], masks)["psnr"], 3)
+            if fitted.channels["specular"].kind == "colors":
+                entry["specular_mean"] = _specular_mean_scores(mesh, material_file, held, relit, relit_pixels,
+                                                               reference["full"], relit_ref, masks, kw)
         rows[row] = entry
     return rows
+
+
+def _specular_mean_scores(mesh, material_file, held, relit, relit_pixels, reference, relit_ref, masks, kw) -> dict:
+    """Held-out and relit PSNR with the fitted specular texture replaced by its per-material
+    mean (same geometry and albedo): whether the texture generalises beyond its views."""
+    from ..material.model import MeshColorMaterial
+    from ..material.passes import component_renders
+    from ..metrics.image import image_metrics
+
+    flat = MeshColorMaterial.load(material_file)
+    flat.make_constant("specular")
+    full = component_renders(mesh, flat.field, held.frames, components=("full",), **kw)["full"]
+    lit = component_renders(mesh, flat.field, relit.frames, relit.environment, components=("full",),
+                            env_pixels=relit_pixels, **kw)["full"]
+    return {"full_psnr": round(image_metrics(full, reference, masks)["psnr"], 3),
+            "relit_psnr": round(image_metrics(lit, relit_ref, masks)["psnr"], 3)}
 
 
 def _initial_mesh(capture, run: Path, settings: dict):
