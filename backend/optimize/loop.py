@@ -285,6 +285,7 @@ class Reconstruction:
         order: list[int] = []
         warmup = self._warmup() if material and self.level == 0 else 0  # material-only steps first
         self.level_iteration = 0
+        joint, frozen_at = material, None  # joint material steps, until the first backtrack
         try:
             while self.level_iteration < c.level_iterations:
                 self.folder.check_stop()
@@ -297,7 +298,7 @@ class Reconstruction:
                     ids.append(int(order.pop()))
                 geometry = self.level_iteration >= warmup
                 loss, grad, mgrads = objective.loss_and_grad(vertices, ids, seed_for(c.seed, self.iteration, 0),
-                                                             geometry, material)
+                                                             geometry, joint)
                 self.iteration += 1
                 self.level_iteration += 1
                 if not (math.isfinite(loss) and finite(*([grad] if geometry else []), *mgrads.values())):
@@ -331,7 +332,13 @@ class Reconstruction:
                         self.material.load_parameters(best[1])
                         opt.set_vertices(vertices)
                         opt.reset_moments()
-                        opt.lr *= 0.5
+                        if joint and geometry:
+                            # the material's steps are the first suspects: Adam moves every
+                            # mesh-color sample by about its step, noise or not, which undoes a
+                            # fitted texture. The level goes on with the material frozen
+                            joint, frozen_at = False, self.level_iteration
+                        else:
+                            opt.lr *= 0.5
                     settled = self.level_iteration >= c.min_level_iterations + warmup
                     if plateau.converged and settled:
                         if opt.lr <= lr0 * c.min_step_scale * 1.0001:
@@ -348,6 +355,7 @@ class Reconstruction:
             self._timed(stage, start)
         record = {"level": self.level, "size": size, "faces": self.mesh.n_faces, "iterations": self.level_iteration,
                   "loss_start": first_loss, "loss": plateau.best, "step_final": opt.lr / lr0,
+                  "material_frozen_at": frozen_at,
                   "seconds": round(time.perf_counter() - start, 3), "elapsed": round(self.elapsed(), 3)}
         if self.truth is not None and self.config.track_metrics:
             record["metrics"] = self._metrics(self.mesh)

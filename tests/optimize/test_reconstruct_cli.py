@@ -312,3 +312,24 @@ def test_the_recorded_command_names_absolute_paths(tmp_path, monkeypatch):
                         "--time-budget", "5"]
     argv = ["reconstruct", "cap", "--out", "r", "--init", "carve"]  # a method, not a file
     assert absolute_paths(argv, build_parser(argv).parse_args(argv))[-1] == "carve"
+
+
+def test_a_level_whose_material_steps_diverge_goes_on_with_the_material_frozen(capture, tmp_path):
+    """Joint Adam steps move every mesh-color sample by about their step, noise or not, and can
+    knock a fitted texture off. When a level's validation loss jumps, the material steps are
+    stopped first, and the surface goes on with its full step."""
+    from backend import variant
+
+    variant.choose(None)
+    from backend.capture.format import load_capture
+    from backend.optimize.loop import Reconstruction
+    from backend.optimize.run_folder import RunFolder
+
+    config = ReconstructConfig(init="sphere", material="staged", effects="specular", max_size=40, coarse_size=20,
+                               initial_faces=1500, spp=8, max_levels=1, level_iterations=60, material_warmup=0,
+                               material_lr=20.0, polish_rounds=0)
+    folder = RunFolder.create(tmp_path / "run", resume=False, overwrite=False)
+    assert Reconstruction(load_capture(capture), folder, config, lambda *a, **k: None).run() == 0
+    level = json.loads((tmp_path / "run" / "report.json").read_text())["levels"][0]
+    assert level["material_frozen_at"] == config.eval_every  # the first validation: absurd material steps
+    assert level["loss"] < level["loss_start"]  # the surface went on improving
