@@ -164,7 +164,7 @@ def test_a_staged_material_run_resumes_where_its_schedule_stopped(capture, tmp_p
     """--resume of a --material staged run: the mesh colors and the schedule's position come
     back; resuming it without --material staged is refused with a one-line error."""
     run = tmp_path / "run"
-    proc = start(capture, run, "--iterations", 200, "--material", "staged")
+    proc = start(capture, run, "--iterations", 200, "--level-iterations", 100, "--material", "staged")
     deadline = time.monotonic() + 180
     for line in proc.stdout:  # stop in level 1, after level 0's material cycle
         e = json.loads(line)
@@ -177,11 +177,11 @@ def test_a_staged_material_run_resumes_where_its_schedule_stopped(capture, tmp_p
     saved = json.loads((run / "state" / "state.json").read_text())["appearance"]["schedule"]
     assert saved["history"], saved  # at least the first cycle is on record
 
-    wrong = run_cli("reconstruct", capture, "--out", run, "--resume", "--iterations", 200, *FAST, timeout=120)
+    wrong = run_cli("reconstruct", capture, "--out", run, "--resume", "--iterations", 200, "--level-iterations", 100, *FAST, timeout=120)
     assert wrong.returncode == 2 and "Traceback" not in wrong.stderr
     assert "--material staged" in wrong.stderr and len(wrong.stderr.strip().splitlines()) == 1, wrong.stderr
 
-    resumed = run_cli("reconstruct", capture, "--out", run, "--resume", "--iterations", 200, *FAST,
+    resumed = run_cli("reconstruct", capture, "--out", run, "--resume", "--iterations", 200, "--level-iterations", 100, *FAST,
                       "--material", "staged", timeout=300)
     assert resumed.returncode == 0, resumed.stderr[-3000:]
     report = json.loads((run / "report.json").read_text())
