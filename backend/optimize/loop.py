@@ -56,6 +56,7 @@ class Reconstruction:
         self.polished = 0  # polish rounds run (see _polish)
         self.budget: FaceBudget | None = None
         self.levels: list[dict] = []
+        self.levels_ended: str | None = None  # why the coarse-to-fine levels ended (_levels_end)
         self.skipped = 0
         self.timings: dict[str, float] = {}
         self.init_info: dict = {}
@@ -149,6 +150,7 @@ class Reconstruction:
         self.polished = state.get("polished", 0)
         self.budget = FaceBudget(**state["budget"])
         self.levels, self.skipped = state["levels"], state["skipped"]
+        self.levels_ended = state.get("levels_ended")
         self.timings, self.init_info = state["timings"], state["init"]
         self.before = state["seconds"]
         self.emit("stage", stage="resume", level=self.level, faces=self.mesh.n_faces)
@@ -187,10 +189,8 @@ class Reconstruction:
                     self.phase = "transition"
                     self._material_cycle(record)
                     self._snapshot(loss=record["loss"])
-                    previous = self.levels[-2] if len(self.levels) > 1 else None
-                    if (self._out_of_budget(self._geometry_reserve()) or self.level + 1 >= c.max_levels
-                            or not keeps_improving(previous, record, c.level_tolerance)
-                            or self.budget.limit > c.max_faces):
+                    self.levels_ended = self._levels_end(record)
+                    if self.levels_ended:
                         break
                 self._transition()
                 self.level += 1
@@ -202,6 +202,22 @@ class Reconstruction:
         if self.phase == "polish":
             self._polish()
         self.appearance.settle(self.mesh, self.material, self.viewset.at(c.max_size), self.level)
+
+    def _levels_end(self, record: dict) -> str | None:
+        """Why no level follows ``record`` (None: another one does)."""
+        c = self.config
+        previous = self.levels[-2] if len(self.levels) > 1 else None
+        if c.time_budget_s and self.elapsed() >= c.time_budget_s * (1.0 - self._geometry_reserve()):
+            return "time budget"
+        if c.iterations and self.iteration >= c.iterations:
+            return "iterations"
+        if self.level + 1 >= c.max_levels:
+            return "max levels"
+        if not keeps_improving(previous, record, c.level_tolerance):
+            return "converged"
+        if self.budget.limit > c.max_faces:
+            return "max faces"
+        return None
 
     def _polish(self) -> None:
         """The paper alternates geometry and material until the loss stops improving: once the
@@ -431,7 +447,8 @@ class Reconstruction:
     def _state(self) -> dict:
         return {"vertices": self.mesh.vertices, "faces": self.mesh.faces, "level": self.level,
                 "iteration": self.iteration, "phase": self.phase, "polished": self.polished,
-                "budget": self.budget.state(), "levels": self.levels, "skipped": self.skipped, "timings": self.timings,
+                "budget": self.budget.state(), "levels": self.levels, "levels_ended": self.levels_ended,
+                "skipped": self.skipped, "timings": self.timings,
                 "init": self.init_info, "seconds": round(self.elapsed(), 3), "appearance": self.appearance.state()}
 
     def _snapshot_interval(self) -> float:
@@ -469,7 +486,7 @@ class Reconstruction:
         report = {
             "capture": str(self.capture.root), "settings": dataclasses.asdict(self.config),
             "stiffness": self.stiffness.event(),
-            "init": self.init_info, "levels": self.levels,
+            "init": self.init_info, "levels": self.levels, "levels_ended": self.levels_ended,
             "result": {"faces": self.mesh.n_faces, "vertices": self.mesh.n_vertices,
                        "genus": inspect(self.mesh).genus, "iterations": self.iteration},
             "losses": [lv["loss"] for lv in self.levels], "skipped_steps": self.skipped,

@@ -123,8 +123,8 @@ class SceneRenderer:
         self.lights = lights
         self.bsdf = _bsdf.SurfaceBSDF(mi.Properties(), field)
         self.field = field
-        scene = {"type": "scene", "integrator": self.settings.integrator_dict(),
-                 "object": mitsuba_mesh(mesh, self.bsdf)}
+        self.object = mitsuba_mesh(mesh, self.bsdf)
+        scene = {"type": "scene", "integrator": self.settings.integrator_dict(), "object": self.object}
         self.n_lights = max((len(ls) for ls in lights), default=0)
         for k in range(self.n_lights):
             scene[f"light{k}"] = point_light_dict(PointLight(np.zeros(3), np.zeros(3)))

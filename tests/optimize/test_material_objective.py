@@ -92,3 +92,23 @@ def test_gradients_point_back_to_the_truth(sphere_capture, tone):
     before = objective.loss(mesh.vertices, ids, seed=11, spp=64)
     after = objective.loss(mesh.vertices + step, ids, seed=11, spp=64)
     assert after < before
+
+
+def test_a_step_over_several_views_sums_their_gradients(sphere_capture):
+    """Views after the first in a step re-attach the vertex normals to the vertices without
+    rebuilding the scene: the step's gradient is the mean of the views' own, to rounding,
+    and the scene renders what a fresh one does after the step."""
+    views = ViewSet(sphere_capture, 32).views
+    mesh = icosphere(3, 0.5)
+    mesh.vertices *= 1.05
+    settings = RenderSettings(spp=16, integrator="direct_projective", sppc=16, sppp=8, sppi=0)
+    objective = Objective(mesh, ConstantMaterial(albedo=0.5, specular=0.2, roughness=0.4, estimate=True),
+                          views, settings)
+    loss, grad, mgrads = objective.loss_and_grad(mesh.vertices, [0, 1, 2], step_seed=7)
+    singles = [objective.loss_and_grad(mesh.vertices, [view], step_seed=7 + view) for view in range(3)]
+    assert np.isclose(loss, np.mean([s[0] for s in singles]), rtol=1e-5)
+    mean = np.mean([s[1] for s in singles], axis=0)
+    assert np.abs(mean).max() > 0 and np.abs(grad - mean).max() < 1e-4 * np.abs(mean).max()
+    assert np.allclose(mgrads["albedo"], np.mean([s[2]["albedo"] for s in singles], axis=0), rtol=1e-4)
+    fresh = Objective(mesh, ConstantMaterial(albedo=0.5, specular=0.2, roughness=0.4, estimate=True), views, settings)
+    assert objective.loss(mesh.vertices, [0, 1], seed=5) == fresh.loss(mesh.vertices, [0, 1], seed=5)
