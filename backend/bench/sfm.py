@@ -62,15 +62,17 @@ def measure(name: str) -> dict:
     from ..video.sfm import solve
 
     source = CAPTURES[name]
-    capture = (middlebury if name == "dino" else nerf).load(source)
-    truth = {f.name: f.camera.camera_to_world for f in capture.frames}
     with tempfile.TemporaryDirectory(prefix=f"sfm-{name}-") as work:
+        capture = middlebury.load(source, Path(work)) if name == "dino" else nerf.load(source)
+        truth = {f.name: f.camera.camera_to_world for f in capture.frames}
+        masks = [Path(f.mask) for f in capture.frames] if all(f.mask for f in capture.frames) else None
         start = time.perf_counter()
-        result = solve([Path(f.image) for f in capture.frames], Path(work), source=source)
+        result = solve([Path(f.image) for f in capture.frames], Path(work), source=source, masks=masks)
         seconds = time.perf_counter() - start
     return {"frames": result.total, "registered": result.registered, "method": result.method,
             "reprojection_error_px": result.reprojection_error_px, "seconds": round(seconds, 1),
-            "stage_seconds": {k: round(v, 1) for k, v in result.seconds.items()}, **compare(result.poses, truth)}
+            "stage_seconds": {k: round(v, 1) for k, v in result.seconds.items()}, "silhouettes": result.silhouettes,
+            **compare(result.poses, truth)}
 
 
 def run(args) -> int:
@@ -87,6 +89,12 @@ def run(args) -> int:
               f" in {f['seconds'] / 60:.1f} min; centre error max {c['max']:.2f} % mean {c['mean']:.2f} % of the ring"
               f" radius; rotation error max {r['max']:.2f} mean {r['mean']:.2f} deg; goal (< 2 deg, < 2 %): "
               f"{'met' if ok else 'NOT met'}", flush=True)
+        if f["silhouettes"]:
+            sil = f["silhouettes"]
+            print(f"      silhouette refinement: {sil['frames']} frames, {sil['pairs']} pairs, "
+                  + (f"tangency median {sil['tangency_median_px'][0]:.2f} -> {sil['tangency_median_px'][1]:.2f} px"
+                     if "tangency_median_px" in sil else "") + ("" if sil["applied"] else f"; not applied: {sil['reason']}"),
+                  flush=True)
     if args.out:
         from .. import fsio
 

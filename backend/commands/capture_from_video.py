@@ -147,9 +147,10 @@ def write_capture(inputs: VideoInputs, out: Path, emit, overwrite: bool = False)
                 "give one mask per source frame")
         names = _write_frames(frames, masks, selection.indices, work, inputs.is_folder)
         emit("frames", selected=selection.indices, blurred=selection.rejected)
-        sfm = solve([work / "frames" / f"{n}.png" for n in names], work / "sfm", SfmOptions(), emit, source=path)
+        sfm = solve([work / "frames" / f"{n}.png" for n in names], work / "sfm", SfmOptions(), emit, source=path,
+                    masks=[work / "masks" / f"{n}.png" for n in names])
         emit("sfm", registered=sfm.registered, total=sfm.total,
-             reprojection_error_px=sfm.reprojection_error_px, method=sfm.method)
+             reprojection_error_px=sfm.reprojection_error_px, method=sfm.method, silhouettes=sfm.silhouettes)
         capture = _scene_capture(sfm, names, selection.indices, work, inputs.environment, masks.path)
         capture.provenance.update(source="images" if inputs.is_folder else "video", path=str(path.resolve()),
                                   masks=str(Path(masks.path).resolve()),

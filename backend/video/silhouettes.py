@@ -1,0 +1,218 @@
+"""Camera refinement by silhouette coherence: the SfM's poses, points, focal length and k1
+adjusted once more, against the feature observations and the masks' epipolar tangencies.
+
+Two views of an object see it inside two silhouette cones. The planes through their baseline
+that touch the object touch both cones, so the outermost epipolar planes of one view's
+silhouette are those of the other's (epipolar tangency, as in silhouette-based calibration of
+turntable sequences). Each pair of views gives two residuals: the differences of the extreme
+angles, about the baseline, of the planes through its silhouettes' convex hulls (a plane
+through an outside epipole touches a silhouette at its hull), times the focal length (pixels).
+
+Why: feature tracks on a sparse ring are short, and bundle adjustment of them alone leaves a
+flat valley. On the Middlebury dino (16 views, tracks of 2.7 views) the SfM poses sat 3.3 %
+of the ring radius off at the weakest link, at the same reprojection error as the
+calibration; their tangency residuals had a median of 8.4 px against 0.6 px for the
+calibrated cameras. With them in the adjustment: 0.88 % max, 0.32 % mean (bench sfm).
+
+Frames whose mask touches the frame border take no part in the tangencies (a cut silhouette
+has false extremes), nor do pairs where either view sees the other's camera near or inside the
+silhouette (the planes' angles then spread over more than ``max_spread_deg``). The result is
+kept only when it lowers the tangency residuals without raising the reprojection error."""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import sparse
+from scipy.optimize import least_squares
+from scipy.spatial import ConvexHull, QhullError
+from scipy.spatial.transform import Rotation
+
+
+@dataclass
+class SilhouetteOptions:
+    weight: float = 1.0  # tangency residuals (pixels) against reprojection residuals (pixels)
+    robust_px: float = 1.0  # soft-L1 scale of both kinds of residual
+    max_spread_deg: float = 60.0  # pairs whose silhouettes' planes spread wider are left out
+    max_evaluations: int = 60
+    min_frames: int = 3  # fewer usable masks: no refinement
+    reprojection_slack: float = 1.25  # the result's RMS reprojection error may grow this much at most
+
+
+def hull_points(mask: np.ndarray) -> np.ndarray | None:
+    """Corners of the convex hull of the mask's pixels (x, y, corner-origin pixels), or None
+    when the mask is empty, degenerate or touches the frame border."""
+    inside = np.asarray(mask) > 0.5
+    if not inside.any() or inside[0].any() or inside[-1].any() or inside[:, 0].any() or inside[:, -1].any():
+        return None
+    y, x = np.nonzero(inside)
+    corners = np.concatenate([np.c_[x + dx, y + dy] for dx in (0, 1) for dy in (0, 1)]).astype(np.float64)
+    try:
+        return corners[ConvexHull(corners).vertices]
+    except QhullError:
+        return None
+
+
+def _distort(xn: np.ndarray, d: dict, k1: float) -> np.ndarray:
+    """OpenCV radial-tangential distortion of normalised points (k1 given separately)."""
+    x, y = xn[..., 0], xn[..., 1]
+    r2 = x * x + y * y
+    radial = 1 + k1 * r2 + d.get("k2", 0.0) * r2 * r2
+    p1, p2 = d.get("p1", 0.0), d.get("p2", 0.0)
+    return np.stack([x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x),
+                     y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y], axis=-1)
+
+
+def _undistort(xd: np.ndarray, d: dict, k1: float, iterations: int = 10) -> np.ndarray:
+    xu = xd.copy()
+    for _ in range(iterations):
+        xu = xu + (xd - _distort(xu, d, k1))
+    return xu
+
+
+class _Problem:
+    """Parameters: per frame a rotation vector (applied before the SfM rotation) and a
+    translation, then a focal-length scale and k1, then the points."""
+
+    def __init__(self, result, hulls: dict[int, np.ndarray], options: SilhouetteOptions):
+        self.result, self.options = result, options
+        self.names = [n for n in result.names if n in result.poses]
+        index = {n: k for k, n in enumerate(self.names)}
+        frame_of = {k: index.get(n) for k, n in enumerate(result.names)}
+        obs = result.observations
+        keep = np.array([frame_of[int(f)] is not None for f in obs[:, 1]], bool)
+        self.pid = obs[keep, 0].astype(int)
+        self.fid = np.array([frame_of[int(f)] for f in obs[keep, 1]], int)
+        self.uv = obs[keep, 2:]
+        self.R0 = np.array([result.poses[n][:, :3] for n in self.names])
+        t0 = np.array([result.poses[n][:, 3] for n in self.names])
+        self.f0 = np.array([result.fx, result.fy])
+        self.c = np.array([result.cx, result.cy])
+        self.dist = dict(result.distortion)
+        self.n = len(self.names)
+        self.x0 = np.concatenate([np.zeros(3 * self.n), t0.ravel(), [1.0, self.dist.get("k1", 0.0)],
+                                  result.points.ravel()])
+        self.centre = np.median(result.points, axis=0) if len(result.points) else np.zeros(3)
+        self.frames = np.array(sorted(index[result.names[k]] for k in hulls if result.names[k] in index), int)
+        size = max((len(h) for h in hulls.values()), default=1)
+        by_frame = {index[result.names[k]]: h for k, h in hulls.items() if result.names[k] in index}
+        self.hulls = np.array([np.concatenate([by_frame[k], np.repeat(by_frame[k][:1], size - len(by_frame[k]), 0)])
+                               for k in self.frames]).reshape(len(self.frames), size, 2)
+        self.pairs = np.zeros((0, 2), int)
+        if len(self.frames) >= 2:
+            a, b = np.triu_indices(len(self.frames), 1)
+            self.pairs = np.c_[a, b]
+            spread = self._angles(self.x0)[2]
+            self.pairs = self.pairs[spread < np.radians(options.max_spread_deg)]
+
+    def unpack(self, x):
+        n = self.n
+        R = Rotation.from_rotvec(x[:3 * n].reshape(n, 3)).as_matrix() @ self.R0
+        t = x[3 * n:6 * n].reshape(n, 3)
+        scale, k1 = x[6 * n:6 * n + 2]
+        return R, t, self.f0 * scale, k1, x[6 * n + 2:].reshape(-1, 3)
+
+    def _angles(self, x):
+        """Extreme plane angles about each pair's baseline, (p, 2) for each view, and their spread."""
+        R, t, f, k1, _ = self.unpack(x)
+        R, t = R[self.frames], t[self.frames]
+        C = -np.einsum("kji,kj->ki", R, t)
+        xn = _undistort((self.hulls - self.c) / f, self.dist, k1)
+        rays = np.einsum("kli,kij->klj", np.concatenate([xn, np.ones(xn.shape[:2] + (1,))], axis=2), R)
+        i, j = self.pairs[:, 0], self.pairs[:, 1]
+        base = C[j] - C[i]
+        base /= np.linalg.norm(base, axis=1, keepdims=True)
+        ref = self.centre - C[i]
+        ref -= base * np.sum(ref * base, axis=1, keepdims=True)
+        ref /= np.linalg.norm(ref, axis=1, keepdims=True)
+        other = np.cross(base, ref)
+        out, spread = [], np.zeros(len(self.pairs))
+        for view in (i, j):
+            angle = np.arctan2(np.einsum("pld,pd->pl", rays[view], other), np.einsum("pld,pd->pl", rays[view], ref))
+            out.append(np.c_[angle.min(1), angle.max(1)])
+            spread = np.maximum(spread, np.ptp(angle, axis=1))
+        return out[0], out[1], spread
+
+    def reprojection(self, x) -> np.ndarray:
+        R, t, f, k1, P = self.unpack(x)
+        cam = np.einsum("nij,nj->ni", R[self.fid], P[self.pid]) + t[self.fid]
+        return (_distort(cam[:, :2] / cam[:, 2:3], self.dist, k1) * f + self.c - self.uv).ravel()
+
+    def tangency(self, x) -> np.ndarray:
+        a, b, _ = self._angles(x)
+        return ((a - b) * self.f0.mean() * x[6 * self.n]).ravel()
+
+    def residuals(self, x) -> np.ndarray:
+        return np.concatenate([self.reprojection(x), self.options.weight * self.tangency(x)])
+
+    def sparsity(self) -> sparse.csr_matrix:
+        n, m = self.n, len(self.fid)
+        rows, cols = [], []
+        for axis in range(2):
+            r = 2 * np.arange(m) + axis
+            for q in range(3):
+                rows += [r, r, r]
+                cols += [3 * self.fid + q, 3 * n + 3 * self.fid + q, 6 * n + 2 + 3 * self.pid + q]
+            for q in range(2):
+                rows.append(r)
+                cols.append(np.full(m, 6 * n + q))
+        frames = self.frames[self.pairs]  # (p, 2) problem frame indices
+        for k in range(2 * len(self.pairs)):
+            r = np.full(14, 2 * m + k)
+            i, j = frames[k // 2]
+            rows.append(r)
+            cols.append(np.r_[[3 * i + q for q in range(3)], [3 * j + q for q in range(3)],
+                              [3 * n + 3 * i + q for q in range(3)], [3 * n + 3 * j + q for q in range(3)],
+                              6 * n, 6 * n + 1])
+        rows, cols = np.concatenate(rows), np.concatenate(cols)
+        shape = (2 * m + 2 * len(self.pairs), len(self.x0))
+        return sparse.csr_matrix((np.ones(len(rows), np.int8), (rows, cols)), shape=shape)
+
+
+def refine(result, masks: dict[str, np.ndarray], options: SilhouetteOptions | None = None):
+    """``result`` (an SfmResult) adjusted with the tangencies of ``masks`` (frame name ->
+    mask in frame pixels), and a summary for the report. The summary's ``applied`` says
+    whether the adjusted cameras were kept (else ``result`` comes back unchanged)."""
+    options = options or SilhouetteOptions()
+    start = time.perf_counter()
+    hulls = {}
+    for k, name in enumerate(result.names):
+        if name in masks and name in result.poses:
+            hull = hull_points(masks[name])
+            if hull is not None:
+                hulls[k] = hull
+    summary = {"frames": len(hulls), "pairs": 0, "applied": False}
+    if len(hulls) < options.min_frames or not len(result.observations):
+        summary["reason"] = f"{len(hulls)} frames with whole silhouettes (at least {options.min_frames} needed)"
+        return result, summary
+    problem = _Problem(result, hulls, options)
+    summary["pairs"] = len(problem.pairs)
+    if not len(problem.pairs):
+        summary["reason"] = "no pair of views sees the object from outside the other's silhouette"
+        return result, summary
+    fit = least_squares(problem.residuals, problem.x0, jac_sparsity=problem.sparsity(), loss="soft_l1",
+                        f_scale=options.robust_px, x_scale="jac", method="trf", tr_solver="lsmr",
+                        max_nfev=options.max_evaluations)
+
+    def rms(x):
+        return float(np.sqrt(np.mean(problem.reprojection(x) ** 2)))
+
+    def median(x):
+        return float(np.median(np.abs(problem.tangency(x))))
+
+    before, after = (rms(problem.x0), median(problem.x0)), (rms(fit.x), median(fit.x))
+    summary.update(reprojection_rms_px=[round(before[0], 4), round(after[0], 4)],
+                   tangency_median_px=[round(before[1], 4), round(after[1], 4)],
+                   seconds=round(time.perf_counter() - start, 2))
+    if not (np.all(np.isfinite(fit.x)) and after[1] < before[1] and after[0] <= options.reprojection_slack * before[0]):
+        summary["reason"] = "the adjustment did not improve the tangencies within the reprojection error"
+        return result, summary
+    R, t, f, k1, points = problem.unpack(fit.x)
+    poses = {n: np.c_[R[k], t[k]] for k, n in enumerate(problem.names)}
+    error = float(np.mean(np.linalg.norm(problem.reprojection(fit.x).reshape(-1, 2), axis=1)))
+    summary["applied"] = True
+    return dataclasses.replace(result, poses=poses, fx=float(f[0]), fy=float(f[1]), points=points,
+                               distortion=dict(result.distortion, k1=float(k1)), reprojection_error_px=error), summary
