@@ -17,7 +17,7 @@ calibrated cameras. With them in the adjustment: 0.88 % max, 0.32 % mean (bench 
 Frames whose mask touches the frame border take no part in the tangencies (a cut silhouette
 has false extremes), nor do pairs where either view sees the other's camera near or inside the
 silhouette (the planes' angles then spread over more than ``max_spread_deg``). The result is
-kept only when it lowers the tangency residuals without raising the reprojection error."""
+kept only when it lowers the tangency residuals without raising the reprojection error much."""
 
 from __future__ import annotations
 
@@ -36,10 +36,15 @@ from scipy.spatial.transform import Rotation
 class SilhouetteOptions:
     weight: float = 1.0  # tangency residuals (pixels) against reprojection residuals (pixels)
     robust_px: float = 1.0  # soft-L1 scale of both kinds of residual
-    max_spread_deg: float = 60.0  # pairs whose silhouettes' planes spread wider are left out
+    # pairs whose silhouettes' planes spread wider are left out (the other camera is seen near
+    # or inside the silhouette; a synthetic ring of 12 around an ellipsoid filling half the
+    # frame: 60 degrees kept 50 of 66 pairs and joined two halves to 1.06 %, 120 kept 60, 0.26 %)
+    max_spread_deg: float = 120.0
     max_evaluations: int = 60
     min_frames: int = 3  # fewer usable masks: no refinement
-    reprojection_slack: float = 1.25  # the result's RMS reprojection error may grow this much at most
+    # the result's RMS reprojection error may grow to slack x before + floor at most
+    reprojection_slack: float = 1.25
+    reprojection_floor_px: float = 0.05
 
 
 def hull_points(mask: np.ndarray) -> np.ndarray | None:
@@ -200,14 +205,17 @@ def refine(result, masks: dict[str, np.ndarray], options: SilhouetteOptions | No
     def rms(x):
         return float(np.sqrt(np.mean(problem.reprojection(x) ** 2)))
 
-    def median(x):
-        return float(np.median(np.abs(problem.tangency(x))))
+    def tangency(x):
+        return np.abs(problem.tangency(x))
 
-    before, after = (rms(problem.x0), median(problem.x0)), (rms(fit.x), median(fit.x))
+    before, after = (rms(problem.x0), tangency(problem.x0)), (rms(fit.x), tangency(fit.x))
     summary.update(reprojection_rms_px=[round(before[0], 4), round(after[0], 4)],
-                   tangency_median_px=[round(before[1], 4), round(after[1], 4)],
+                   tangency_median_px=[round(float(np.median(t)), 4) for t in (before[1], after[1])],
+                   tangency_max_px=[round(float(t.max()), 4) for t in (before[1], after[1])],
                    seconds=round(time.perf_counter() - start, 2))
-    if not (np.all(np.isfinite(fit.x)) and after[1] < before[1] and after[0] <= options.reprojection_slack * before[0]):
+    better = np.sum(after[1] ** 2) < np.sum(before[1] ** 2)
+    within = after[0] <= options.reprojection_slack * before[0] + options.reprojection_floor_px
+    if not (np.all(np.isfinite(fit.x)) and better and within):
         summary["reason"] = "the adjustment did not improve the tangencies within the reprojection error"
         return result, summary
     R, t, f, k1, points = problem.unpack(fit.x)
