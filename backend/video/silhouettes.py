@@ -40,6 +40,9 @@ class SilhouetteOptions:
     # or inside the silhouette; a synthetic ring of 12 around an ellipsoid filling half the
     # frame: 60 degrees kept 50 of 66 pairs and joined two halves to 1.06 %, 120 kept 60, 0.26 %)
     max_spread_deg: float = 120.0
+    # pairs: frames this many evenly spaced steps apart in capture order (all pairs up to
+    # max_partners + 1 frames), so that the residuals grow with the frames, not their square
+    max_partners: int = 16
     max_evaluations: int = 60
     min_frames: int = 3  # fewer usable masks: no refinement
     # the result's RMS reprojection error may grow to slack x before + floor at most
@@ -109,7 +112,8 @@ class _Problem:
         self.pairs = np.zeros((0, 2), int)
         if len(self.frames) >= 2:
             a, b = np.triu_indices(len(self.frames), 1)
-            self.pairs = np.c_[a, b]
+            offsets = np.unique(np.round(np.linspace(1, len(self.frames) - 1, options.max_partners)))
+            self.pairs = np.c_[a, b][np.isin(b - a, offsets)]
             spread = self._angles(self.x0)[2]
             self.pairs = self.pairs[spread < np.radians(options.max_spread_deg)]
 
