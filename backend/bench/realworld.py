@@ -176,7 +176,8 @@ def run_pipeline(args, orbit: Path) -> dict:
     print(f"  reconstruct: budget {budget:.1f} min, {reconstruct_s / 60:.1f} min, "
           f"{report.get('result', {}).get('faces')} faces")
     figures = score(capture, run, orbit)
-    figures.update(sfm={k: sfm.get(k) for k in ("registered", "total", "reprojection_error_px", "method")},
+    figures.update(sfm={k: sfm.get(k) for k in ("registered", "total", "reprojection_error_px", "method",
+                                                "silhouettes")},
                    minutes={"capture": capture_s / 60, "reconstruct": reconstruct_s / 60,
                             "total": (capture_s + reconstruct_s) / 60, "goal": args.minutes},
                    reconstruct_budget_min=budget, load_average=list(os.getloadavg()))
