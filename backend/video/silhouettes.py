@@ -85,8 +85,9 @@ class _Problem:
     """Parameters: per frame a rotation vector (applied before the SfM rotation) and a
     translation, then a focal-length scale and k1, then the points."""
 
-    def __init__(self, result, hulls: dict[int, np.ndarray], options: SilhouetteOptions):
-        self.result, self.options = result, options
+    def __init__(self, result, hulls: dict[str, np.ndarray], options: SilhouetteOptions):
+        """``hulls``: registered frame name -> silhouette hull, in capture order."""
+        self.options = options
         self.names = [n for n in result.names if n in result.poses]
         index = {n: k for k, n in enumerate(self.names)}
         frame_of = {k: index.get(n) for k, n in enumerate(result.names)}
@@ -104,11 +105,9 @@ class _Problem:
         self.x0 = np.concatenate([np.zeros(3 * self.n), t0.ravel(), [1.0, self.dist.get("k1", 0.0)],
                                   result.points.ravel()])
         self.centre = np.median(result.points, axis=0) if len(result.points) else np.zeros(3)
-        self.frames = np.array(sorted(index[result.names[k]] for k in hulls if result.names[k] in index), int)
-        size = max((len(h) for h in hulls.values()), default=1)
-        by_frame = {index[result.names[k]]: h for k, h in hulls.items() if result.names[k] in index}
-        self.hulls = np.array([np.concatenate([by_frame[k], np.repeat(by_frame[k][:1], size - len(by_frame[k]), 0)])
-                               for k in self.frames]).reshape(len(self.frames), size, 2)
+        self.frames = np.array([index[n] for n in hulls], int)
+        size = max(len(h) for h in hulls.values())  # hulls padded by repeating a point (same extremes)
+        self.hulls = np.array([np.concatenate([h, np.repeat(h[:1], size - len(h), 0)]) for h in hulls.values()])
         self.pairs = np.zeros((0, 2), int)
         if len(self.frames) >= 2:
             a, b = np.triu_indices(len(self.frames), 1)
@@ -188,19 +187,25 @@ def refine(result, masks: dict[str, np.ndarray], options: SilhouetteOptions | No
     options = options or SilhouetteOptions()
     start = time.perf_counter()
     hulls = {}
-    for k, name in enumerate(result.names):
+    for name in result.names:
         if name in masks and name in result.poses:
             hull = hull_points(masks[name])
             if hull is not None:
-                hulls[k] = hull
+                hulls[name] = hull
     summary = {"frames": len(hulls), "pairs": 0, "applied": False}
-    if len(hulls) < options.min_frames or not len(result.observations):
+    if len(hulls) < options.min_frames:
         summary["reason"] = f"{len(hulls)} frames with whole silhouettes (at least {options.min_frames} needed)"
+        return result, summary
+    if not len(result.observations):
+        summary["reason"] = "no feature observations"
         return result, summary
     problem = _Problem(result, hulls, options)
     summary["pairs"] = len(problem.pairs)
     if not len(problem.pairs):
         summary["reason"] = "no pair of views sees the object from outside the other's silhouette"
+        return result, summary
+    if not np.all(np.isfinite(problem.residuals(problem.x0))):
+        summary["reason"] = "a point projects to infinity"
         return result, summary
     fit = least_squares(problem.residuals, problem.x0, jac_sparsity=problem.sparsity(), loss="soft_l1",
                         f_scale=options.robust_px, x_scale="jac", method="trf", tr_solver="lsmr",
