@@ -142,6 +142,24 @@ def effects_summary(enabled: dict) -> str:
     return ", ".join(parts)
 
 
+def cameras_summary(done: dict) -> str:
+    """One line from capture-from-video's ``done`` event, e.g. '40/40 frames registered
+    (0.52 px), refined by 37 silhouettes'."""
+    if not done.get("total"):
+        return ""
+    line = f"{done.get('registered')}/{done.get('total')} frames registered"
+    if done.get("reprojection_error_px") is not None:
+        line += f" ({float(done['reprojection_error_px']):.2f} px)"
+    silhouettes = done.get("silhouettes") or {}
+    if silhouettes.get("applied"):
+        line += f", refined by {silhouettes.get('frames')} silhouettes"
+        if silhouettes.get("dropped"):
+            line += f" (masks left out: {', '.join(map(str, silhouettes['dropped']))})"
+    elif silhouettes.get("reason"):
+        line += f", silhouettes not used: {silhouettes['reason']}"
+    return line
+
+
 def format_duration(seconds: float) -> str:
     seconds = int(round(seconds))
     if seconds < 60:

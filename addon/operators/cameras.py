@@ -6,7 +6,7 @@ import bpy
 from bpy.props import BoolProperty, StringProperty
 from bpy_extras.io_utils import ImportHelper
 
-from .. import capture_file, interpreter, jobs, world
+from .. import capture_file, interpreter, jobs, progress, world
 from .. import frames as fr
 from ..errors import AddonInputError, require
 from ..preferences import backend_python
@@ -118,7 +118,8 @@ class SFT_OT_solve_cameras(JobModal, bpy.types.Operator):
             summary = load_cameras(context, capture_file.read_capture(self.out), True, True)
         except AddonInputError as err:
             return fail(self, err)
-        self.report({"INFO"}, f"solved: {summary}")
+        cameras = progress.cameras_summary(job.state.done)
+        self.report({"INFO"}, f"solved: {summary}" + (f"; {cameras}" if cameras else ""))
         return {"FINISHED"}
 
 

@@ -130,7 +130,7 @@ def run(args) -> int:
     out = Path(args.out)
     written, sfm = write_capture(inputs, out, emit, overwrite=args.overwrite)
     emit("done", result=str(out / FILENAME), frames=len(written.frames), registered=sfm.registered,
-         total=sfm.total, reprojection_error_px=sfm.reprojection_error_px,
+         total=sfm.total, reprojection_error_px=sfm.reprojection_error_px, silhouettes=sfm.silhouettes,
          lighting=_lighting_summary(written))
     return 0
 

@@ -45,6 +45,7 @@ class SilhouetteOptions:
     max_partners: int = 16
     max_evaluations: int = 60
     min_frames: int = 3  # fewer usable masks: no refinement
+    outlier_px: float = 5.0  # a frame's median tangency residual above this (and 10x all's) drops it
     # the result's RMS reprojection error may grow to slack x before + floor at most
     reprojection_slack: float = 1.25
     reprojection_floor_px: float = 0.05
@@ -153,6 +154,13 @@ class _Problem:
         a, b, _ = self._angles(x)
         return ((a - b) * self.f0.mean() * x[6 * self.n]).ravel()
 
+    def frame_medians(self, x) -> dict[str, float]:
+        """Each frame's median absolute tangency residual over its pairs."""
+        per_pair = np.abs(self.tangency(x)).reshape(-1, 2).max(axis=1)
+        frames = self.frames[self.pairs]
+        return {self.names[k]: float(np.median(per_pair[(frames == k).any(axis=1)]))
+                for k in self.frames if (frames == k).any()}
+
     def residuals(self, x) -> np.ndarray:
         return np.concatenate([self.reprojection(x), self.options.weight * self.tangency(x)])
 
@@ -183,7 +191,11 @@ class _Problem:
 def refine(result, masks: dict[str, np.ndarray], options: SilhouetteOptions | None = None):
     """``result`` (an SfmResult) adjusted with the tangencies of ``masks`` (frame name ->
     mask in frame pixels), and a summary for the report. The summary's ``applied`` says
-    whether the adjusted cameras were kept (else ``result`` comes back unchanged)."""
+    whether the adjusted cameras were kept (else ``result`` comes back unchanged).
+
+    A frame whose tangencies stay far off after the adjustment (its median over its pairs
+    above ``outlier_px`` and ten times the median of all) has a mask that does not fit the
+    others: it is dropped (``dropped``) and the adjustment starts again without it."""
     options = options or SilhouetteOptions()
     start = time.perf_counter()
     hulls = {}
@@ -192,24 +204,32 @@ def refine(result, masks: dict[str, np.ndarray], options: SilhouetteOptions | No
             hull = hull_points(masks[name])
             if hull is not None:
                 hulls[name] = hull
-    summary = {"frames": len(hulls), "pairs": 0, "applied": False}
-    if len(hulls) < options.min_frames:
-        summary["reason"] = f"{len(hulls)} frames with whole silhouettes (at least {options.min_frames} needed)"
-        return result, summary
+    summary = {"frames": len(hulls), "pairs": 0, "applied": False, "dropped": []}
     if not len(result.observations):
         summary["reason"] = "no feature observations"
         return result, summary
-    problem = _Problem(result, hulls, options)
-    summary["pairs"] = len(problem.pairs)
-    if not len(problem.pairs):
-        summary["reason"] = "no pair of views sees the object from outside the other's silhouette"
-        return result, summary
-    if not np.all(np.isfinite(problem.residuals(problem.x0))):
-        summary["reason"] = "a point projects to infinity"
-        return result, summary
-    fit = least_squares(problem.residuals, problem.x0, jac_sparsity=problem.sparsity(), loss="soft_l1",
-                        f_scale=options.robust_px, x_scale="jac", method="trf", tr_solver="lsmr",
-                        max_nfev=options.max_evaluations)
+    while True:
+        if len(hulls) < options.min_frames:
+            summary["reason"] = f"{len(hulls)} frames with whole silhouettes (at least {options.min_frames} needed)"
+            return result, summary
+        problem = _Problem(result, hulls, options)
+        summary.update(frames=len(hulls), pairs=len(problem.pairs))
+        if not len(problem.pairs):
+            summary["reason"] = "no pair of views sees the object from outside the other's silhouette"
+            return result, summary
+        if not np.all(np.isfinite(problem.residuals(problem.x0))):
+            summary["reason"] = "a point projects to infinity"
+            return result, summary
+        fit = least_squares(problem.residuals, problem.x0, jac_sparsity=problem.sparsity(), loss="soft_l1",
+                            f_scale=options.robust_px, x_scale="jac", method="trf", tr_solver="lsmr",
+                            max_nfev=options.max_evaluations)
+        off = problem.frame_medians(fit.x)
+        limit = max(options.outlier_px, 10 * float(np.median(np.abs(problem.tangency(fit.x)))))
+        worst = max(off, key=off.get)
+        if off[worst] <= limit:
+            break
+        summary["dropped"].append(worst)
+        del hulls[worst]
 
     def rms(x):
         return float(np.sqrt(np.mean(problem.reprojection(x) ** 2)))

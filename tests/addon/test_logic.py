@@ -267,3 +267,13 @@ def test_effects_event_is_summarised_for_the_panel():
     state.update({"event": "stiffness", "lambda": 20.0, "clip": 99.5, "chroma_spread": 0.15,
                   "reason": "a constant material cannot explain the frames' colour variation"})
     assert state.smoothing == "λ 20 (textured, one constant material)"
+
+
+def test_solved_cameras_are_summarised_with_the_silhouette_refinement():
+    done = {"event": "done", "registered": 40, "total": 40, "reprojection_error_px": 0.5186,
+            "silhouettes": {"applied": True, "frames": 37, "pairs": 312, "dropped": ["00012"]}}
+    assert progress.cameras_summary(done) == ("40/40 frames registered (0.52 px), refined by 37 silhouettes "
+                                              "(masks left out: 00012)")
+    done["silhouettes"] = {"applied": False, "frames": 2, "reason": "2 frames with whole silhouettes"}
+    assert progress.cameras_summary(done).endswith("silhouettes not used: 2 frames with whole silhouettes")
+    assert progress.cameras_summary({"event": "done"}) == ""  # a reconstruct run's done event
