@@ -11,13 +11,14 @@ through an outside epipole touches a silhouette at its hull), times the focal le
 Why: feature tracks on a sparse ring are short, and bundle adjustment of them alone leaves a
 flat valley. On the Middlebury dino (16 views, tracks of 2.7 views) the SfM poses sat 3.3 %
 of the ring radius off at the weakest link, at the same reprojection error as the
-calibration; their tangency residuals had a median of 8.4 px against 0.6 px for the
-calibrated cameras. With them in the adjustment: 0.88 % max, 0.32 % mean (bench sfm).
+calibration; their tangency residuals had a median of 8 px against 0.7 px for the calibrated
+cameras (a one-off check). With them in the adjustment: 0.88 % max, 0.29 % mean (bench sfm).
 
 Frames whose mask touches the frame border take no part in the tangencies (a cut silhouette
 has false extremes), nor do pairs where either view sees the other's camera near or inside the
 silhouette (the planes' angles then spread over more than ``max_spread_deg``). The result is
-kept only when it lowers the tangency residuals without raising the reprojection error much."""
+kept only when it lowers the tangency residuals without raising the reprojection error much;
+a frame whose mask fits no other is dropped first (``refine``)."""
 
 from __future__ import annotations
 
