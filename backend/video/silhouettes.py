@@ -14,9 +14,9 @@ of the ring radius off at the weakest link, at the same reprojection error as th
 calibration; their tangency residuals had a median of 8 px against 0.7 px for the calibrated
 cameras (a one-off check). With them in the adjustment: 0.88 % max, 0.29 % mean (bench sfm).
 
-Frames whose mask touches the frame border take no part in the tangencies (a cut silhouette
-has false extremes), nor do pairs where either view sees the other's camera near or inside the
-silhouette (the planes' angles then spread over more than ``max_spread_deg``). The result is
+Where a mask is cut by the frame border, an extreme on the border is the frame's: that
+residual is left out. Pairs where either view sees the other's camera near or inside the
+silhouette (the planes' angles then spread over more than ``max_spread_deg``) take no part. The result is
 kept only when it lowers the tangency residuals without raising the reprojection error much;
 a frame whose mask fits no other is dropped first (``refine``)."""
 
@@ -54,9 +54,9 @@ class SilhouetteOptions:
 
 def hull_points(mask: np.ndarray) -> np.ndarray | None:
     """Corners of the convex hull of the mask's pixels (x, y, corner-origin pixels), or None
-    when the mask is empty, degenerate or touches the frame border."""
+    when the mask is empty or degenerate."""
     inside = np.asarray(mask) > 0.5
-    if not inside.any() or inside[0].any() or inside[-1].any() or inside[:, 0].any() or inside[:, -1].any():
+    if not inside.any():
         return None
     y, x = np.nonzero(inside)
     corners = np.concatenate([np.c_[x + dx, y + dy] for dx in (0, 1) for dy in (0, 1)]).astype(np.float64)
@@ -110,13 +110,25 @@ class _Problem:
         self.frames = np.array([index[n] for n in hulls], int)
         size = max(len(h) for h in hulls.values())  # hulls padded by repeating a point (same extremes)
         self.hulls = np.array([np.concatenate([h, np.repeat(h[:1], size - len(h), 0)]) for h in hulls.values()])
+        on_border = ((self.hulls <= 0) | (self.hulls >= [result.width, result.height])).any(axis=2)
         self.pairs = np.zeros((0, 2), int)
+        self.valid = np.zeros((0, 2))
         if len(self.frames) >= 2:
             a, b = np.triu_indices(len(self.frames), 1)
             offsets = np.unique(np.round(np.linspace(1, len(self.frames) - 1, options.max_partners)))
             self.pairs = np.c_[a, b][np.isin(b - a, offsets)]
-            spread = self._angles(self.x0)[2]
-            self.pairs = self.pairs[spread < np.radians(options.max_spread_deg)]
+            angles, spread = self._plane_angles(self.x0)
+            keep = spread < np.radians(options.max_spread_deg)
+            self.pairs = self.pairs[keep]
+            # an extreme on the frame border is the frame's, not the object's: that residual
+            # is left out (one inside the frame is the whole silhouette's extreme)
+            valid = np.ones((len(self.pairs), 2), bool)
+            for view, angle in zip(self.pairs.T, angles):
+                cut = on_border[view]
+                angle = angle[keep]
+                for e, index in enumerate((angle.argmin(axis=1), angle.argmax(axis=1))):
+                    valid[:, e] &= ~cut[np.arange(len(index)), index]
+            self.valid = valid.astype(np.float64)
 
     def unpack(self, x):
         n = self.n
@@ -125,8 +137,9 @@ class _Problem:
         scale, k1 = x[6 * n:6 * n + 2]
         return R, t, self.f0 * scale, k1, x[6 * n + 2:].reshape(-1, 3)
 
-    def _angles(self, x):
-        """Extreme plane angles about each pair's baseline, (p, 2) for each view, and their spread."""
+    def _plane_angles(self, x):
+        """The angles about each pair's baseline of the planes through each view's hull points,
+        (p, L) for each view, and their largest spread."""
         R, t, f, k1, _ = self.unpack(x)
         R, t = R[self.frames], t[self.frames]
         C = -np.einsum("kji,kj->ki", R, t)
@@ -139,12 +152,9 @@ class _Problem:
         ref -= base * np.sum(ref * base, axis=1, keepdims=True)
         ref /= np.linalg.norm(ref, axis=1, keepdims=True)
         other = np.cross(base, ref)
-        out, spread = [], np.zeros(len(self.pairs))
-        for view in (i, j):
-            angle = np.arctan2(np.einsum("pld,pd->pl", rays[view], other), np.einsum("pld,pd->pl", rays[view], ref))
-            out.append(np.c_[angle.min(1), angle.max(1)])
-            spread = np.maximum(spread, np.ptp(angle, axis=1))
-        return out[0], out[1], spread
+        angles = [np.arctan2(np.einsum("pld,pd->pl", rays[view], other), np.einsum("pld,pd->pl", rays[view], ref))
+                  for view in (i, j)]
+        return angles, np.maximum(*(np.ptp(a, axis=1) for a in angles))
 
     def reprojection(self, x) -> np.ndarray:
         R, t, f, k1, P = self.unpack(x)
@@ -152,8 +162,10 @@ class _Problem:
         return (_distort(cam[:, :2] / cam[:, 2:3], self.dist, k1) * f + self.c - self.uv).ravel()
 
     def tangency(self, x) -> np.ndarray:
-        a, b, _ = self._angles(x)
-        return ((a - b) * self.f0.mean() * x[6 * self.n]).ravel()
+        """Per pair, the differences of the two views' smallest and largest plane angles (pixels)."""
+        (a, b), _ = self._plane_angles(x)
+        gap = np.c_[a.min(1) - b.min(1), a.max(1) - b.max(1)]
+        return (gap * self.valid * self.f0.mean() * x[6 * self.n]).ravel()
 
     def frame_medians(self, x) -> dict[str, float]:
         """Each frame's median absolute tangency residual over its pairs."""
@@ -211,12 +223,12 @@ def refine(result, masks: dict[str, np.ndarray], options: SilhouetteOptions | No
         return result, summary
     while True:
         if len(hulls) < options.min_frames:
-            summary["reason"] = f"{len(hulls)} frames with whole silhouettes (at least {options.min_frames} needed)"
+            summary["reason"] = f"{len(hulls)} frames with silhouettes (at least {options.min_frames} needed)"
             return result, summary
         problem = _Problem(result, hulls, options)
-        summary.update(frames=len(hulls), pairs=len(problem.pairs))
-        if not len(problem.pairs):
-            summary["reason"] = "no pair of views sees the object from outside the other's silhouette"
+        summary.update(frames=len(hulls), pairs=len(problem.pairs), residuals=int(problem.valid.sum()))
+        if not problem.valid.any():
+            summary["reason"] = "no pair of views sees the object whole from outside the other's silhouette"
             return result, summary
         if not np.all(np.isfinite(problem.residuals(problem.x0))):
             summary["reason"] = "a point projects to infinity"
