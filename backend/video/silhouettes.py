@@ -12,13 +12,14 @@ Why: feature tracks on a sparse ring are short, and bundle adjustment of them al
 flat valley. On the Middlebury dino (16 views, tracks of 2.7 views) the SfM poses sat 3.3 %
 of the ring radius off at the weakest link, at the same reprojection error as the
 calibration; their tangency residuals had a median of 8 px against 0.7 px for the calibrated
-cameras (a one-off check). With them in the adjustment: 0.88 % max, 0.29 % mean (bench sfm).
+cameras (a one-off check). With them in the adjustment: 0.8-1.0 % max, 0.3-0.4 % mean
+(bench sfm, several runs).
 
 Where a mask is cut by the frame border, an extreme on the border is the frame's: that
 residual is left out. Pairs where either view sees the other's camera near or inside the
-silhouette (the planes' angles then spread over more than ``max_spread_deg``) take no part. The result is
-kept only when it lowers the tangency residuals without raising the reprojection error much;
-a frame whose mask fits no other is dropped first (``refine``)."""
+silhouette (the planes' angles then spread over more than ``max_spread_deg``) take no part.
+The result is kept only when it lowers the tangency residuals without raising the
+reprojection error much; a frame whose mask fits no other is dropped first (``refine``)."""
 
 from __future__ import annotations
 

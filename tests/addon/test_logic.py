@@ -274,6 +274,6 @@ def test_solved_cameras_are_summarised_with_the_silhouette_refinement():
             "silhouettes": {"applied": True, "frames": 37, "pairs": 312, "dropped": ["00012"]}}
     assert progress.cameras_summary(done) == ("40/40 frames registered (0.52 px), refined by 37 silhouettes "
                                               "(masks left out: 00012)")
-    done["silhouettes"] = {"applied": False, "frames": 2, "reason": "2 frames with whole silhouettes"}
-    assert progress.cameras_summary(done).endswith("silhouettes not used: 2 frames with whole silhouettes")
+    done["silhouettes"] = {"applied": False, "frames": 2, "reason": "2 frames with silhouettes"}
+    assert progress.cameras_summary(done).endswith("silhouettes not used: 2 frames with silhouettes")
     assert progress.cameras_summary({"event": "done"}) == ""  # a reconstruct run's done event
