@@ -207,10 +207,8 @@ class Reconstruction:
         """Why no level follows ``record`` (None: another one does)."""
         c = self.config
         previous = self.levels[-2] if len(self.levels) > 1 else None
-        if c.time_budget_s and self.elapsed() >= c.time_budget_s * (1.0 - self._geometry_reserve()):
-            return "time budget"
-        if c.iterations and self.iteration >= c.iterations:
-            return "iterations"
+        if self._out_of_budget(self._geometry_reserve()):
+            return "iterations" if c.iterations and self.iteration >= c.iterations else "time budget"
         if self.level + 1 >= c.max_levels:
             return "max levels"
         if not keeps_improving(previous, record, c.level_tolerance):

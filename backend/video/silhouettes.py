@@ -33,6 +33,8 @@ from scipy.optimize import least_squares
 from scipy.spatial import ConvexHull, QhullError
 from scipy.spatial.transform import Rotation
 
+from ..capture.undistort import distort, undistort_points
+
 
 @dataclass
 class SilhouetteOptions:
@@ -65,23 +67,6 @@ def hull_points(mask: np.ndarray) -> np.ndarray | None:
         return corners[ConvexHull(corners).vertices]
     except QhullError:
         return None
-
-
-def _distort(xn: np.ndarray, d: dict, k1: float) -> np.ndarray:
-    """OpenCV radial-tangential distortion of normalised points (k1 given separately)."""
-    x, y = xn[..., 0], xn[..., 1]
-    r2 = x * x + y * y
-    radial = 1 + k1 * r2 + d.get("k2", 0.0) * r2 * r2
-    p1, p2 = d.get("p1", 0.0), d.get("p2", 0.0)
-    return np.stack([x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x),
-                     y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y], axis=-1)
-
-
-def _undistort(xd: np.ndarray, d: dict, k1: float, iterations: int = 10) -> np.ndarray:
-    xu = xd.copy()
-    for _ in range(iterations):
-        xu = xu + (xd - _distort(xu, d, k1))
-    return xu
 
 
 class _Problem:
@@ -144,7 +129,7 @@ class _Problem:
         R, t, f, k1, _ = self.unpack(x)
         R, t = R[self.frames], t[self.frames]
         C = -np.einsum("kji,kj->ki", R, t)
-        xn = _undistort((self.hulls - self.c) / f, self.dist, k1)
+        xn = undistort_points((self.hulls - self.c) / f, dict(self.dist, k1=k1), iterations=10)
         rays = np.einsum("kli,kij->klj", np.concatenate([xn, np.ones(xn.shape[:2] + (1,))], axis=2), R)
         i, j = self.pairs[:, 0], self.pairs[:, 1]
         base = C[j] - C[i]
@@ -160,7 +145,7 @@ class _Problem:
     def reprojection(self, x) -> np.ndarray:
         R, t, f, k1, P = self.unpack(x)
         cam = np.einsum("nij,nj->ni", R[self.fid], P[self.pid]) + t[self.fid]
-        return (_distort(cam[:, :2] / cam[:, 2:3], self.dist, k1) * f + self.c - self.uv).ravel()
+        return (distort(cam[:, :2] / cam[:, 2:3], dict(self.dist, k1=k1)) * f + self.c - self.uv).ravel()
 
     def tangency(self, x) -> np.ndarray:
         """Per pair, the differences of the two views' smallest and largest plane angles (pixels)."""
