@@ -171,8 +171,8 @@ def recording(inject_nan: set[int] = frozenset(), track_tangles: bool = False):
             log.grad_norms.append(float(np.sqrt(sum(np.sum(np.square(g)) for g in grads))) if grads else 0.0)
             return loss, grad, mgrads
 
-        def loss(self, vertices, view_ids, seed, spp=None):
-            value = super().loss(vertices, view_ids, seed, spp)
+        def validation_loss(self, vertices, view_ids, seed, spp=None):
+            value = super().validation_loss(vertices, view_ids, seed, spp)
             log.validation.append(value)
             return value
 

@@ -274,7 +274,19 @@ class Reconstruction:
                            sppc=c.spp, sppp=c.sppp, sppi=0))
 
     def _run_level(self, material: bool = True) -> dict:
-        """One level of vertex steps (with joint material steps unless ``material`` is False)."""
+        """One level of vertex steps, with joint material steps; or, with ``material`` False, a
+        polish round: the material frozen and a steady step (see below).
+
+        A level halves its step when the validation loss plateaus and backtracks to its best
+        surface when the loss rises by ``backtrack``. Polish rounds start from a converged
+        surface, where single validation losses swing by 5-15 % between evaluations while the
+        held-out views keep improving (dragon, 50.6k faces, 600 steps at 1.5x the step:
+        held-out PSNR 31.19 -> 31.55, 31.88, 32.19, 32.36 dB every 150 steps; the validation
+        loss fell 22 % with swings of up to 13 %). There the level's rules halved the step
+        within 30 steps and ended rounds after 60-260. So a round grows into its step over
+        ``polish_warmup`` steps and keeps it; it backtracks only when a loss is
+        ``polish_divergence`` above the best, and ends when the mean of the last
+        ``polish_window`` losses stops setting new bests."""
         c = self.config
         start = time.perf_counter()
         size = level_size(self.level, c.coarse_size, c.max_size)
@@ -287,9 +299,11 @@ class Reconstruction:
         material_opt = Adam(c.material_lr)
         val_ids = validation_views(len(views), c.validation_views)
         val_seed = seed_for(c.seed, 10_000_019, 0)
-        plateau = Plateau(c.plateau_tolerance, c.patience)
+        steady = not material
+        plateau = Plateau(c.plateau_tolerance, c.polish_patience if steady else c.patience)
+        full, recent = lr0, []  # a steady round's step and its validation losses
         vertices = self.mesh.vertices.copy()
-        plateau.update(objective.loss(vertices, val_ids, val_seed, c.validation_spp))
+        plateau.update(objective.validation_loss(vertices, val_ids, val_seed, c.validation_spp))
         stage = "geometry" if material else "polish"
         self.emit("stage", stage=stage, level=self.level, faces=self.mesh.n_faces, iteration=self.iteration,
                   loss=plateau.best, size=size, seconds=round(self.elapsed(), 3))
@@ -301,7 +315,7 @@ class Reconstruction:
         self.level_iteration = 0
         joint, frozen_at = material, None  # joint material steps, until the first backtrack
         try:
-            while self.level_iteration < c.level_iterations:
+            while self.level_iteration < (c.polish_iterations if steady else c.level_iterations):
                 self.folder.check_stop()
                 if self._out_of_budget(self._geometry_reserve() if material else self._polish_reserve()):
                     break
@@ -311,6 +325,8 @@ class Reconstruction:
                         order = list(rng.permutation(len(views)))
                     ids.append(int(order.pop()))
                 geometry = self.level_iteration >= warmup
+                if steady:
+                    opt.lr = full * min(1.0, (self.level_iteration + 1) / max(c.polish_warmup, 1))
                 loss, grad, mgrads = objective.loss_and_grad(vertices, ids, seed_for(c.seed, self.iteration, 0),
                                                              geometry, joint)
                 self.iteration += 1
@@ -329,6 +345,7 @@ class Reconstruction:
                         opt.set_vertices(vertices)
                         opt.reset_moments()
                         opt.lr *= 0.5
+                        full *= 0.5
                         self._skip("the step put a camera inside the mesh (step halved)")
                         continue
                     vertices = new_vertices
@@ -337,8 +354,21 @@ class Reconstruction:
                     self.material.load_parameters(material_opt.step(latents, mgrads))
                 self.progress.update(stage=stage, level=self.level, iteration=self.level_iteration,
                                      iterations=c.level_iterations, loss=loss, faces=self.mesh.n_faces)
-                if self.level_iteration % c.eval_every == 0:
-                    val = objective.loss(vertices, val_ids, val_seed, c.validation_spp)
+                if self.level_iteration % c.eval_every == 0 and steady:
+                    val = objective.validation_loss(vertices, val_ids, val_seed, c.validation_spp)
+                    if val > plateau.best * (1 + c.polish_divergence) or not math.isfinite(val):
+                        vertices = best[0].copy()  # diverged: back to the last surface checked
+                        opt.set_vertices(vertices)
+                        opt.reset_moments()
+                        full *= 0.5
+                    else:
+                        best = (vertices.copy(), best[1])
+                        recent.append(val)
+                        plateau.update(float(np.mean(recent[-c.polish_window:])))
+                        if plateau.converged:
+                            break
+                elif self.level_iteration % c.eval_every == 0:
+                    val = objective.validation_loss(vertices, val_ids, val_seed, c.validation_spp)
                     if plateau.update(val):
                         best = (vertices.copy(), self._latents())
                     elif val > plateau.best * (1 + c.backtrack) or not math.isfinite(val):
@@ -368,7 +398,7 @@ class Reconstruction:
             self.material.load_parameters(best[1])
             self._timed(stage, start)
         record = {"level": self.level, "size": size, "faces": self.mesh.n_faces, "iterations": self.level_iteration,
-                  "loss_start": first_loss, "loss": plateau.best, "step_final": opt.lr / lr0,
+                  "loss_start": first_loss, "loss": plateau.best, "step_final": (full if steady else opt.lr) / lr0,
                   "material_frozen_at": frozen_at,
                   "seconds": round(time.perf_counter() - start, 3), "elapsed": round(self.elapsed(), 3)}
         if self.truth is not None and self.config.track_metrics:

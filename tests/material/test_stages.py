@@ -139,6 +139,20 @@ def test_finalise_reopens_the_textures_once_with_more_patience():
     assert s.stage == "done"  # only once
 
 
+def test_an_undone_cycle_ends_its_stage_even_with_patience_left():
+    s = stages.MaterialSchedule(constant_cycles=1, patience=1)
+    for loss in [10, 9, 9, 8, 8]:
+        s.report(loss)
+    s.finalise()  # patience 2, best reset
+    s.report(7.0, reverted=True)  # the first final diffuse cycle is undone: no second try
+    assert s.stage == "specular"
+    s.report(6.0)
+    s.report(5.0)
+    assert s.stage == "specular"
+    s.report(5.0, reverted=True)
+    assert s.stage == "done"
+
+
 def test_run_cycle_walks_the_schedule():
     mesh, cams, lights, truth = scene(env=True)
     sky = procedural.sky(64)

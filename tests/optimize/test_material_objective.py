@@ -112,3 +112,22 @@ def test_a_step_over_several_views_sums_their_gradients(sphere_capture):
     assert np.allclose(mgrads["albedo"], np.mean([s[2]["albedo"] for s in singles], axis=0), rtol=1e-4)
     fresh = Objective(mesh, ConstantMaterial(albedo=0.5, specular=0.2, roughness=0.4, estimate=True), views, settings)
     assert objective.loss(mesh.vertices, [0, 1], seed=5) == fresh.loss(mesh.vertices, [0, 1], seed=5)
+
+
+def test_validation_loss_leaves_out_the_renders_own_noise(sphere_capture):
+    """At few samples the plain squared error is mostly the render's variance; the validation
+    estimate (two half-sample renders, their residuals multiplied) stays near the error of the
+    converged render, so relative convergence tests see the surface's own gains."""
+    views = ViewSet(sphere_capture, 32).views
+    mesh = icosphere(3, 0.5)  # the true surface: what is left is noise
+    settings = RenderSettings(spp=4, max_depth=3, integrator="prb_projective", sppc=4, sppp=4, sppi=0)
+    objective = Objective(mesh, ConstantMaterial(albedo=0.6, specular=0.2, roughness=0.4), views, settings)
+    ids = list(range(len(views)))
+    converged = objective.loss(mesh.vertices, ids, seed=3, spp=1024)
+    noisy = objective.loss(mesh.vertices, ids, seed=3, spp=4)
+    estimate = objective.validation_loss(mesh.vertices, ids, seed=3, spp=4)
+    assert noisy > 1.5 * converged
+    assert abs(estimate - converged) < 0.25 * (noisy - converged)
+    # the estimate tells a better surface from a worse one as the plain error does
+    worse = mesh.vertices * 1.01
+    assert objective.validation_loss(worse, ids, seed=3, spp=4) > estimate

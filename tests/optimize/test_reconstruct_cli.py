@@ -230,7 +230,9 @@ def test_simplification_carries_the_fitted_material_to_the_next_level(capture, t
     assert len(levels) == 3, levels
     before, after = levels[1], levels[2]
     assert before["size"] == after["size"] and before["faces"] < after["faces"] < 4 * before["faces"]  # simplified
-    assert after["loss_start"] < before["loss"] * 1.1, (before, after)
+    # validation losses leave out the render noise, so the surface's own change under
+    # simplification weighs more than it did against a noise floor; grey would start far above
+    assert after["loss_start"] < before["loss"] * 1.3 and after["loss_start"] < before["loss_start"], (before, after)
 
 
 def test_sigterm_cancels_cleanly(capture, tmp_path):
