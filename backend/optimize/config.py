@@ -67,10 +67,11 @@ class ReconstructConfig:
     polish_rounds: int = 4
     polish_tolerance: float = 0.01
     # a polish round keeps its step and ends when the mean of the last polish_window validation
-    # losses has not set a new best for polish_patience evaluations (or at polish_iterations steps)
+    # losses has not set a new best for polish_patience evaluations, or after
+    # polish_length x level_iterations steps
     polish_window: int = 3
     polish_patience: int = 10
-    polish_iterations: int = 1600
+    polish_length: int = 2
     polish_warmup: int = 10  # steps over which the step grows to its full length
     polish_divergence: float = 0.25  # a validation loss this much above the best: back, step halved
     # re-meshing between levels: auto = when ray casting finds back faces or geometry outside

@@ -302,6 +302,7 @@ class Reconstruction:
         steady = not material
         plateau = Plateau(c.plateau_tolerance, c.polish_patience if steady else c.patience)
         full, recent = lr0, []  # a steady round's step and its validation losses
+        limit = c.level_iterations * (c.polish_length if steady else 1)
         vertices = self.mesh.vertices.copy()
         plateau.update(objective.validation_loss(vertices, val_ids, val_seed, c.validation_spp))
         stage = "geometry" if material else "polish"
@@ -315,7 +316,7 @@ class Reconstruction:
         self.level_iteration = 0
         joint, frozen_at = material, None  # joint material steps, until the first backtrack
         try:
-            while self.level_iteration < (c.polish_iterations if steady else c.level_iterations):
+            while self.level_iteration < limit:
                 self.folder.check_stop()
                 if self._out_of_budget(self._geometry_reserve() if material else self._polish_reserve()):
                     break
@@ -353,7 +354,7 @@ class Reconstruction:
                     latents = {n: z for n, z in self._latents().items() if n in mgrads}  # the trainable ones
                     self.material.load_parameters(material_opt.step(latents, mgrads))
                 self.progress.update(stage=stage, level=self.level, iteration=self.level_iteration,
-                                     iterations=c.level_iterations, loss=loss, faces=self.mesh.n_faces)
+                                     iterations=limit, loss=loss, faces=self.mesh.n_faces)
                 if self.level_iteration % c.eval_every == 0 and steady:
                     val = objective.validation_loss(vertices, val_ids, val_seed, c.validation_spp)
                     if val > plateau.best * (1 + c.polish_divergence) or not math.isfinite(val):

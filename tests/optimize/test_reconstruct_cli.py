@@ -205,6 +205,8 @@ def test_a_staged_run_polishes_the_surface_under_the_fitted_material(capture, tm
     assert 1 <= len(polish) <= ReconstructConfig().polish_rounds and all(r["polish"] for r in polish)
     assert all(r["faces"] == first["faces"] for r in polish)
     assert polish[0]["loss"] < polish[0]["loss_start"] < first["loss"]  # the fitted material, then the surface
+    # a round runs at most polish_length x level_iterations steps
+    assert all(r["iterations"] <= ReconstructConfig().polish_length * 60 for r in polish), polish
     assert len(polish) == ReconstructConfig().polish_rounds or (
         polish[-1]["loss"] > polish[-1]["loss_start"] * (1 - ReconstructConfig().polish_tolerance))
     stages = [stage for stage, _ in report["material_schedule"]["schedule"]]
