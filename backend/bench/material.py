@@ -126,7 +126,7 @@ def _renders(mesh, field, view_set, spp: int, max_depth: int, seed: int = 900) -
 
 def benchmark(spec: MaterialBench, out: Path, emit) -> dict:
     from ..capture.format import load_capture
-    from ..capture.images import read_rgba
+    from ..capture.images import read_mask, read_rgba
     from ..geometry.mesh import load_mesh, save_mesh
     from ..material import stages
     from ..material.export import write_glb
@@ -174,7 +174,7 @@ def benchmark(spec: MaterialBench, out: Path, emit) -> dict:
     for key in ("held_out", "relit"):
         view_set = load_capture(capture.path(capture.ground_truth[key]))
         rendered = _renders(mesh, material.field, view_set, spec.eval_spp, spec.max_depth)
-        _, view_masks = _views(view_set)
+        view_masks = [read_mask(f.mask) for f in view_set.frames]  # the references are rendered here
         targets = _renders(truth, truth_field, view_set, spec.eval_spp, spec.max_depth, seed=500)
         scores = image_metrics(rendered, targets, view_masks)
         metrics[f"{key}_psnr"], metrics[f"{key}_ssim"] = scores["psnr"], scores["ssim"]
