@@ -34,7 +34,8 @@ class MaterialDriver:
     settings: FitSettings = field(default_factory=FitSettings)
     schedule: MaterialSchedule = field(default_factory=MaterialSchedule)
     # shares of a run's time budget the geometry levels leave to the final material stages and
-    # polish rounds, and the polish rounds leave to the refinement after them. Armadillo, 10 min:
+    # polish rounds, and the polish rounds leave to the refinement after them (until a material
+    # cycle on the final mesh has been timed: Reconstruction._polish_reserve). Armadillo, 10 min:
     # a 0.25 reserve left no time to polish (Chamfer 0.00222, 27.83 dB, relit 27.58); 0.4 left
     # one round at 17.5k faces (Chamfer 0.00141, 28.26 dB, relit 28.59, albedo RMSE 0.0526 -> 0.0506)
     reserve: float = 0.4
@@ -80,10 +81,10 @@ class MaterialDriver:
         self.results.append(result)
         return result
 
-    def finalise(self, iterations_scale: int = 4) -> None:
+    def finalise(self, last: str = "specular", iterations_scale: int = 4) -> None:
         """Geometry has converged: longer textured stages to the end (MaterialSchedule.finalise)."""
         if not self.schedule.final:
-            self.schedule.finalise()
+            self.schedule.finalise(last=last)
             self.settings = replace(self.settings, iterations=self.settings.iterations * iterations_scale)
 
     def settle(self, renderer, images, masks, material: MeshColorMaterial) -> dict | None:

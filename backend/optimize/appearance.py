@@ -85,16 +85,19 @@ class Appearance:
             self.decide(mesh, material, views, reason="materials became spatially varying")
         return {"stage": stage_before, "loss": result.loss, "seconds": round(time.perf_counter() - start, 3)}
 
+    def _last_stage(self) -> str:
+        """The material schedule's last stage: diffuse when the scene has no specular lobe."""
+        return "diffuse" if self.decision is not None and not self.decision.specular else "specular"
+
     def finalise(self) -> None:
         """Geometry has converged: the material's last, longer stages follow."""
         if self.driver is not None:
-            self.driver.finalise()
+            self.driver.finalise(self._last_stage())
 
     def refine_material(self) -> None:
         """The surface moved under the finished material: its last stage runs again."""
         if self.driver is not None:
-            diffuse_only = self.decision is not None and not self.decision.specular
-            self.driver.schedule.refine("diffuse" if diffuse_only else "specular")
+            self.driver.schedule.refine(self._last_stage())
 
     def settle(self, mesh, material, views, level: int) -> None:
         """The run's end: a specular texture that the views left out of its fit do not support

@@ -96,9 +96,16 @@ class Reconstruction:
         return driver.reserve if driver is not None else 0.0
 
     def _polish_reserve(self) -> float:
-        """The share of a time budget polish rounds leave to the material refinement after them."""
-        driver = self.appearance.driver
-        return driver.polish_reserve if driver is not None else 0.0
+        """The share of a time budget polish rounds leave to the material refinement after them:
+        one cycle (``MaterialSchedule.refine``), as long as the last material cycle on the final
+        mesh took, with a quarter to spare; the driver's share before one has run."""
+        driver, budget = self.appearance.driver, self.config.time_budget_s
+        if driver is None:
+            return 0.0
+        cycles = self.levels[-1].get("material") if self.levels else None
+        if not (budget and cycles):
+            return driver.polish_reserve
+        return 1.25 * cycles[-1]["seconds"] / budget
 
     def _timed(self, name: str, start: float) -> None:
         self.timings[name] = round(self.timings.get(name, 0.0) + time.perf_counter() - start, 3)

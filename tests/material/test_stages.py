@@ -130,20 +130,47 @@ def test_finalise_reopens_the_textures_once_with_more_patience():
     assert s.stage == "done"
     s.finalise()
     seen = []
-    for loss in [7, 6.9, 6.5, 6.5, 6.5, 6.0, 6.0, 6.0]:
+    for loss in [7, 6.9, 6.5, 6.5, 6.5]:
         seen.append(s.stage)
         s.report(loss)
-    # diffuse ends after two cycles without a 1 % gain, then specular likewise
-    assert seen == ["diffuse"] * 5 + ["specular"] * 3 and s.stage == "done"
+    # the finished textures go on in the specular stage (it fits every channel), until two
+    # cycles bring no 1 % gain
+    assert seen == ["specular"] * 5 and s.stage == "done"
     s.finalise()
     assert s.stage == "done"  # only once
+
+
+def test_finalise_runs_diffuse_first_when_the_textures_had_not_got_that_far():
+    unfinished = stages.MaterialSchedule(constant_cycles=1, patience=1)
+    unfinished.report(10)
+    assert unfinished.stage == "diffuse"
+    diffuse_only = stages.MaterialSchedule(constant_cycles=1, patience=1, stage="done")
+    for s, last in ((unfinished, "specular"), (diffuse_only, "diffuse")):
+        s.finalise(last=last)
+        seen = []
+        for loss in [7, 6.9, 6.9, 6.9]:
+            seen.append(s.stage)
+            s.report(loss)
+        assert seen == ["diffuse"] * 4 and s.stage == "specular"
+
+
+def test_a_refinement_runs_one_cycle_of_the_last_stage():
+    s = stages.MaterialSchedule(constant_cycles=1, patience=1, stage="done")
+    s.refine("specular")
+    s.report(5.0)  # an improving cycle: the refinement still ends
+    assert s.stage == "done" and s.cycle_limit is None
+    s.refine("specular", cycles=2)
+    s.report(4.0)
+    assert s.stage == "specular"
+    s.report(3.0)
+    assert s.stage == "done"
 
 
 def test_an_undone_cycle_ends_its_stage_even_with_patience_left():
     s = stages.MaterialSchedule(constant_cycles=1, patience=1)
     for loss in [10, 9, 9, 8, 8]:
         s.report(loss)
-    s.finalise()  # patience 2, best reset
+    s.finalise(last="diffuse")  # patience 2, best reset
     s.report(7.0, reverted=True)  # the first final diffuse cycle is undone: no second try
     assert s.stage == "specular"
     s.report(6.0)

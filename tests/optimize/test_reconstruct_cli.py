@@ -218,6 +218,11 @@ def test_a_staged_run_polishes_the_surface_under_the_fitted_material(capture, tm
     log = events(run)
     assert sum(e["event"] == "stage" and e["stage"] == "polish" for e in log) == len(polish)
     assert report["timings"]["polish"] > 0
+    # each round is followed by one cycle of the material's last stage
+    cycles = {f"material:{stage}" for stage in ("constant", "diffuse", "specular")}
+    order = [e["stage"] for e in log if e["event"] == "stage" and (e["stage"] == "polish" or e["stage"] in cycles)]
+    after_rounds = " ".join(order[order.index("polish"):]).split("polish")[1:]
+    assert [r.split() for r in after_rounds] == [["material:specular"]] * len(polish), order
 
 
 def test_simplification_carries_the_fitted_material_to_the_next_level(capture, tmp_path):
