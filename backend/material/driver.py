@@ -34,12 +34,15 @@ class MaterialDriver:
     settings: FitSettings = field(default_factory=FitSettings)
     schedule: MaterialSchedule = field(default_factory=MaterialSchedule)
     # shares of a run's time budget the geometry levels leave to the final material stages and
-    # polish rounds, and the polish rounds leave to the refinement after them (until a material
-    # cycle on the final mesh has been timed: Reconstruction._polish_reserve). Armadillo, 10 min:
+    # polish rounds, and the polish rounds leave to what follows them. Armadillo, 10 min:
     # a 0.25 reserve left no time to polish (Chamfer 0.00222, 27.83 dB, relit 27.58); 0.4 left
     # one round at 17.5k faces (Chamfer 0.00141, 28.26 dB, relit 28.59, albedo RMSE 0.0526 -> 0.0506)
     reserve: float = 0.4
     polish_reserve: float = 0.05
+    # once a material cycle on the final mesh has been timed, polish rounds leave this many of
+    # its length instead: the refinement cycle (1.13x in a dragon run), the specular check and
+    # the outputs (0.4x). At 1.25x that dragon run ended 9 s past its 20 minutes
+    polish_reserve_cycles: float = 1.75
     labels: FaceLabels | None = None
     results: list[FitResult] = field(default_factory=list)
     specular_check: dict | None = None  # what settle() found

@@ -97,17 +97,15 @@ class Reconstruction:
 
     def _polish_reserve(self) -> float:
         """The share of a time budget polish rounds leave to what follows them: one material
-        cycle (``MaterialSchedule.refine``), the specular check and the run's outputs. Measured
-        in units of the last material cycle on the final mesh (dragon, 20 min: the refinement
-        took 1.13x that cycle, the check and outputs another 0.4x); the driver's share before
-        one has run."""
+        cycle (``MaterialSchedule.refine``), the specular check and the run's outputs, in units
+        of the last material cycle on the final mesh (the driver's share before one has run)."""
         driver, budget = self.appearance.driver, self.config.time_budget_s
         if driver is None:
             return 0.0
         cycles = self.levels[-1].get("material") if self.levels else None
         if not (budget and cycles):
             return driver.polish_reserve
-        return 1.75 * cycles[-1]["seconds"] / budget
+        return driver.polish_reserve_cycles * cycles[-1]["seconds"] / budget
 
     def _timed(self, name: str, start: float) -> None:
         self.timings[name] = round(self.timings.get(name, 0.0) + time.perf_counter() - start, 3)
