@@ -21,7 +21,7 @@ find_python() {
 
 setup() {
     local stamp=.venv/.requirements.sha256 want
-    want=$(sha256sum requirements.txt | cut -d' ' -f1)
+    want=$(cat requirements.txt backend/requirements.txt | sha256sum | cut -d' ' -f1)
     if [ -x .venv/bin/python ] && [ -f "$stamp" ] && [ "$(cat "$stamp")" = "$want" ]; then
         return
     fi

@@ -51,15 +51,40 @@ def _bake(context, scene, obj, image, kind: str) -> None:
                             margin=2, margin_type="EXTEND", use_clear=True, target="IMAGE_TEXTURES")
 
 
+F0_DIELECTRIC = 0.04  # glTF's F0 at specularFactor 1 and a white specular colour
+
+
+def mean_attribute(mesh, name: str) -> float | None:
+    values = mesh.attributes.get(name)
+    if values is None or not len(values.data):
+        return None
+    buf = np.empty(len(values.data), np.float32)
+    values.data.foreach_get("value", buf)
+    return float(buf.mean())
+
+
+def _set_specular(bsdf, mesh) -> None:
+    """KHR_materials_specular as the backend's result.glb writes it: specularFactor 1
+    (Specular IOR Level 0.5) and a specular colour of specular / 0.04, so F0 = specular at
+    normal incidence (the mean over the surface: the exporter takes one colour factor)."""
+    specular = mean_attribute(mesh, "specular")
+    if specular is None:
+        return
+    bsdf.inputs["Specular IOR Level"].default_value = 0.5
+    tint = specular / F0_DIELECTRIC
+    bsdf.inputs["Specular Tint"].default_value = (tint, tint, tint, 1.0)
+
+
 def _export_material(mesh, color: bpy.types.Image | None, roughness: bpy.types.Image | None) -> bpy.types.Material:
     """A Principled BSDF the glTF exporter understands: baked textures, or the colour
-    attribute as base colour with the mean roughness."""
+    attribute as base colour with the mean roughness; the specular lobe as KHR_materials_specular."""
     mat = bpy.data.materials.new(".sft_export")
     if bpy.app.version < (5, 0, 0):  # always on (and deprecated) from Blender 5
         mat.use_nodes = True
     nodes, links = mat.node_tree.nodes, mat.node_tree.links
     bsdf = next(n for n in nodes if n.type == "BSDF_PRINCIPLED")
     bsdf.inputs["Metallic"].default_value = 0.0
+    _set_specular(bsdf, mesh)
     if color is not None:
         tex = nodes.new("ShaderNodeTexImage")
         tex.image = color
@@ -73,11 +98,9 @@ def _export_material(mesh, color: bpy.types.Image | None, roughness: bpy.types.I
         attr = nodes.new("ShaderNodeVertexColor")
         attr.layer_name = COLOR_ATTRIBUTE
         links.new(attr.outputs["Color"], bsdf.inputs["Base Color"])
-        values = mesh.attributes.get("roughness")
-        if values is not None and len(values.data):
-            buf = np.empty(len(values.data), np.float32)
-            values.data.foreach_get("value", buf)
-            bsdf.inputs["Roughness"].default_value = float(buf.mean())
+        roughness_value = mean_attribute(mesh, "roughness")
+        if roughness_value is not None:
+            bsdf.inputs["Roughness"].default_value = roughness_value
     return mat
 
 

@@ -16,17 +16,38 @@ import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from .install_backend import installed_python
+
 PACKAGE_DIR = Path(__file__).resolve().parent.parent  # holds addon/ and backend/
 
 
-def default_python(package_dir: Path = PACKAGE_DIR) -> str:
-    """``<package>/.venv``'s interpreter, else ``$SFT_PYTHON``, else ``python3`` on PATH."""
+def default_python(package_dir: Path = PACKAGE_DIR, installed: Path | None = None) -> str:
+    """``<package>/.venv``'s interpreter (a developer checkout), else the one Install Backend
+    made (``installed``: its environment folder), else ``$SFT_PYTHON``, else ``python3``."""
     for rel in (".venv/bin/python", ".venv/Scripts/python.exe"):
         if (package_dir / rel).is_file():
             return str(package_dir / rel)
+    if installed is not None and (python := installed_python(installed)) is not None:
+        return str(python)
     if os.environ.get("SFT_PYTHON"):
         return os.environ["SFT_PYTHON"]
     return shutil.which("python3") or shutil.which("python") or "python3"
+
+
+def has_interpreter(package_dir: Path = PACKAGE_DIR, installed: Path | None = None) -> bool:
+    """Whether a backend interpreter was set up (developer .venv, Install Backend or $SFT_PYTHON)."""
+    return default_python(package_dir, installed) not in (shutil.which("python3"), shutil.which("python"), "python3")
+
+
+def install_command(venv: Path, base: str = sys.executable, package_dir: Path = PACKAGE_DIR) -> list[str]:
+    """The command line of Install Backend: ``addon/install_backend.py`` run by ``base``."""
+    return [base, str(package_dir / "addon" / "install_backend.py"), "--venv", str(venv),
+            "--requirements", str(package_dir / "backend" / "requirements.txt"), "--package", str(package_dir)]
+
+
+def exists(python: str) -> bool:
+    """Whether ``python`` names an interpreter file or a program on PATH."""
+    return Path(python).is_file() or shutil.which(python) is not None
 
 
 def has_command(name: str, root: Path = PACKAGE_DIR) -> bool:
@@ -118,23 +139,37 @@ def check(python: str, root: Path = PACKAGE_DIR, timeout: float = 180.0) -> Chec
                                   "can import mitsuba in the add-on preferences")
     except subprocess.TimeoutExpired:
         return CheckReport(False, f"{python}: 'python -m backend check' did not answer in {timeout:.0f} s")
+    return summarise_check(python, proc.stdout.splitlines(), (proc.stderr or proc.stdout).strip().splitlines())
+
+
+FIX_INSTALL = "press Install Backend in the add-on preferences, or choose an interpreter that imports mitsuba"
+
+
+def summarise_check(python: str, stdout: list[str], log: list[str]) -> CheckReport:
+    """One line from the output of ``<python> -m backend check``: the variant or what is missing."""
     report = None
-    for line in reversed(proc.stdout.splitlines()):
+    for line in reversed(stdout):
         try:
             report = json.loads(line)
             break
         except json.JSONDecodeError:
             continue
-    if not isinstance(report, dict):
-        tail = " ".join((proc.stderr or proc.stdout).strip().splitlines()[-2:])
-        return CheckReport(False, f"{python}: the backend does not run ({tail or 'no output'}). "
-                                  f"Fix: install requirements.txt into this interpreter")
+    if not isinstance(report, dict) or "missing" not in report:
+        tail = " ".join(log[-2:])
+        return CheckReport(False, f"{python}: the backend does not run ({tail or 'no output'}). Fix: {FIX_INSTALL}")
     versions = report.get("versions", {})
     if report.get("ok"):
-        summary = (f"OK: Python {report.get('python')}, mitsuba {versions.get('mitsuba')}, "
-                   f"variant {report.get('variant', '?')}")
+        summary = (f"OK: {variant_text(report)}; Python {report.get('python')}, mitsuba {versions.get('mitsuba')}")
         return CheckReport(True, summary, [], report)
     missing = list(report.get("missing", []))
     names = ", ".join(m.split(" (")[0] for m in missing)
-    return CheckReport(False, f"{python}: missing {names}. Fix: pip install -r requirements.txt "
-                              "into this interpreter", missing, report)
+    return CheckReport(False, f"{python}: missing {names}. Fix: {FIX_INSTALL}", missing, report)
+
+
+def variant_text(report: dict) -> str:
+    """e.g. 'CUDA (cuda_ad_rgb)' or 'CPU, LLVM 23 (llvm_ad_rgb)'."""
+    variant = str(report.get("variant", "?"))
+    if variant.startswith("cuda"):
+        return f"CUDA ({variant})"
+    llvm = report.get("llvm_version")
+    return f"CPU, LLVM {llvm} ({variant})" if llvm else f"CPU ({variant})"

@@ -25,11 +25,11 @@ class Job:
     """A backend command running in the background, with its :class:`RunState`."""
 
     def __init__(self, python: str, args: list[str], run_dir: Path | None = None, kind: str = "job",
-                 root: Path = interpreter.PACKAGE_DIR):
+                 root: Path = interpreter.PACKAGE_DIR, argv: list[str] | None = None):
         self.kind = kind
         self.state = RunState()
         self.run_dir = run_dir
-        self.process = BackendProcess(python, args, run_dir, root)
+        self.process = BackendProcess(python, args, run_dir, root, argv=argv)
         self._settled = False
         ACTIVE[kind] = self
 

@@ -99,3 +99,19 @@ def read_display_mesh(path: str | Path) -> DisplayMesh:
         if n not in ("x", "y", "z", "red", "green", "blue", "alpha", *NORMALS):
             mesh.attributes[n] = np.asarray(vertex[n], dtype=np.float32)
     return mesh
+
+
+def write_triangle_ply(path: str | Path, vertices: np.ndarray, faces: np.ndarray) -> None:
+    """Write a binary little-endian PLY of triangles (the backend reads it as an --init mesh)."""
+    vertices = np.ascontiguousarray(vertices, dtype="<f4").reshape(-1, 3)
+    faces = np.asarray(faces, dtype="<i4").reshape(-1, 3)
+    header = (f"ply\nformat binary_little_endian 1.0\nelement vertex {len(vertices)}\n"
+              "property float x\nproperty float y\nproperty float z\n"
+              f"element face {len(faces)}\nproperty list uchar int vertex_indices\nend_header\n").encode("ascii")
+    rows = np.zeros(len(faces), dtype=[("n", "u1"), ("i", "<i4", (3,))])
+    rows["n"], rows["i"] = 3, faces
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_bytes(header + vertices.tobytes() + rows.tobytes())
+    tmp.replace(path)

@@ -92,8 +92,8 @@ class BackendProcess:
 
     def __init__(self, python: str, args: list[str], run_dir: str | os.PathLike | None = None,
                  root: Path = interpreter.PACKAGE_DIR, log_lines: int = 200,
-                 grace_s: float = 20.0, kill_s: float = 60.0):
-        self.argv = interpreter.command(python, *args)
+                 grace_s: float = 20.0, kill_s: float = 60.0, argv: list[str] | None = None):
+        self.argv = argv or interpreter.command(python, *args)  # argv: another program speaking the protocol
         self.run_dir = Path(run_dir) if run_dir else None
         self.log: collections.deque[str] = collections.deque(maxlen=log_lines)
         self.events: list[dict] = []

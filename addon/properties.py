@@ -5,6 +5,30 @@ from bpy.props import EnumProperty, FloatProperty, IntProperty, PointerProperty,
 
 from .presets import PRESETS
 
+QUALITY = (("auto", "Fit Budget", "The most accurate preset whose calibrated time fits the time budget "
+            "(Balanced when the budget is 0)"), *PRESETS)
+MATERIALS = (
+    ("FULL", "Full", "Spatially varying diffuse albedo, specular and roughness as mesh colors, fitted in stages "
+     "(constants, diffuse, specular); exported with result.glb"),
+    ("CONSTANT", "Constant", "One albedo, specular and roughness for the whole object: faster, for uniform objects"),
+)
+INITS = (
+    ("AUTO", "Automatic", "Visual hull of the masks when every frame has one, else a sphere"),
+    ("CARVE", "Visual Hull", "Carve the masks' visual hull (needs masks)"),
+    ("SPHERE", "Sphere", "A sphere around the cameras' common focus"),
+    ("POINTS", "SfM Points", "Screened Poisson surface of the solved cameras' sparse points"),
+    ("OBJECT", "Blender Object", "Start from a mesh object of this scene (world coordinates)"),
+)
+EFFECTS = (
+    ("AUTO", "Auto", "Measure which light-transport effects the scene calls for (bounces, shadow gradients, "
+     "specular) and simulate only those"),
+    ("ALL", "All", "Simulate every effect: slower, for scenes where the measurement may miss one"),
+)
+
+
+def _is_mesh(_self, obj) -> bool:
+    return obj.type == "MESH"
+
 DEVICES = (
     ("AUTO", "Auto", "GPU when Cycles has one configured, else CPU"),
     ("CPU", "CPU", "Render on the CPU"),
@@ -25,11 +49,22 @@ class SFT_SceneSettings(bpy.types.PropertyGroup):
     env_strength: FloatProperty(name="Strength", default=1.0, min=0.0, soft_max=10.0)
     env_rotation: FloatProperty(name="Rotation Z", default=0.0, soft_min=-180.0, soft_max=180.0,
                                 description="Environment rotation about Z, degrees")
-    preset: EnumProperty(name="Quality", items=PRESETS, default="balanced",
+    preset: EnumProperty(name="Quality", items=QUALITY, default="auto",
                          description="Reconstruction quality preset")
+    time_budget: FloatProperty(name="Time Budget", default=30.0, min=0.0, soft_max=240.0, precision=0,
+                               description="Minutes for the whole reconstruction: it stops then with the best "
+                                           "mesh so far (0: until converged)")
+    material: EnumProperty(name="Material", items=MATERIALS, default="FULL",
+                           description="What the material model fits")
+    init: EnumProperty(name="Initialisation", items=INITS, default="AUTO", description="The starting mesh")
+    init_object: PointerProperty(name="Object", type=bpy.types.Object, poll=_is_mesh,
+                                 description="Mesh object to start from (empty: the active object)")
+    effects: EnumProperty(name="Effects", items=EFFECTS, default="AUTO",
+                          description="Light-transport effects simulated while optimising")
     extra_args: StringProperty(
         name="Extra Arguments", default="",
-        description="Further command-line options for 'python -m backend reconstruct'")
+        description="Further command-line options for 'python -m backend reconstruct' (they win over the "
+                    "settings above)")
     preview_frame: IntProperty(name="Frame", default=0, min=0,
                                description="Input frame whose camera the preview uses")
     preview_env: StringProperty(

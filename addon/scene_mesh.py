@@ -15,6 +15,9 @@ OBJECT_NAME = "Reconstruction"
 MATERIAL_NAME = "SfT Reconstruction"
 COLOR_ATTRIBUTE = "albedo"
 NORMAL_ATTRIBUTE = "custom_normal"
+# a point-domain "custom_normal" attribute shades as custom normals from Blender 4.5 (free
+# normals); the manifest allows 4.2, where Blender's own smooth normals are shown instead
+FREE_NORMALS = bpy.app.version >= (4, 5, 0)
 
 
 def reconstruction_material() -> bpy.types.Material:
@@ -103,9 +106,30 @@ def apply_display_mesh(obj: bpy.types.Object, dm: DisplayMesh) -> None:
         mesh.color_attributes.render_color_index = mesh.color_attributes.find(COLOR_ATTRIBUTE)
     for name, values in dm.attributes.items():
         _point_attribute(mesh, name, "FLOAT").data.foreach_set("value", np.ascontiguousarray(values, np.float32))
-    if dm.normals is not None:
+    if dm.normals is not None and FREE_NORMALS:
         normals = _point_attribute(mesh, NORMAL_ATTRIBUTE, "FLOAT_VECTOR")
         normals.data.foreach_set("vector", np.ascontiguousarray(dm.normals, np.float32).ravel())
     elif mesh.attributes.get(NORMAL_ATTRIBUTE) is not None:  # Blender's own normals again
         mesh.attributes.remove(mesh.attributes[NORMAL_ATTRIBUTE])
     mesh.update(calc_edges=topology_changed)
+
+
+def export_object_mesh(context, obj, path) -> int:
+    """Write ``obj``'s evaluated mesh (modifiers applied, world coordinates, triangulated) as
+    PLY for the backend's ``--init``; returns its face count."""
+    from .ply import write_triangle_ply
+
+    evaluated = obj.evaluated_get(context.evaluated_depsgraph_get())
+    mesh = evaluated.to_mesh()
+    try:
+        mesh.calc_loop_triangles()
+        co = np.empty(len(mesh.vertices) * 3, np.float32)
+        mesh.vertices.foreach_get("co", co)
+        tris = np.empty(len(mesh.loop_triangles) * 3, np.int32)
+        mesh.loop_triangles.foreach_get("vertices", tris)
+        m = np.array(obj.matrix_world, dtype=np.float64)
+        world = co.reshape(-1, 3) @ m[:3, :3].T + m[:3, 3]
+        write_triangle_ply(path, world, tris.reshape(-1, 3))
+        return len(tris) // 3
+    finally:
+        evaluated.to_mesh_clear()

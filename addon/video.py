@@ -29,8 +29,9 @@ def video_info(path: str | Path) -> tuple[int, int, int, float]:
     return info
 
 
-def render_frames(path: str | Path, frames: list[int], out_dir: str | Path) -> list[Path]:
-    """Write the 0-based ``frames`` of a video as PNGs in ``out_dir``; returns their paths."""
+def render_frames(path: str | Path, frames: list[int], out_dir: str | Path, progress=None) -> list[Path]:
+    """Write the 0-based ``frames`` of a video as PNGs in ``out_dir``; returns their paths.
+    ``progress(done, total)`` is called after each frame."""
     total, width, height, fps = video_info(path)
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -58,6 +59,8 @@ def render_frames(path: str | Path, frames: list[int], out_dir: str | Path) -> l
             bpy.ops.render.render(animation=True, scene=scene.name)
             require(target.is_file(), path, f"frame {index} could not be decoded", "re-encode the video")
             written.append(target)
+            if progress is not None:
+                progress(len(written), len(frames))
         return written
     finally:
         bpy.data.scenes.remove(scene)

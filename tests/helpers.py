@@ -21,9 +21,11 @@ def shared_data(*parts: str) -> Path:
     return path
 
 
-def run_cli(*args, timeout: float = 600, check: bool = False, cwd: Path | None = None) -> subprocess.CompletedProcess:
-    """Run ``python -m backend ARGS`` in a subprocess, capturing text output."""
-    env = dict(os.environ, PYTHONPATH=str(REPO), PYTHONUNBUFFERED="1")
+def run_cli(*args, timeout: float = 600, check: bool = False, cwd: Path | None = None,
+            env: dict | None = None) -> subprocess.CompletedProcess:
+    """Run ``python -m backend ARGS`` in a subprocess, capturing text output (``env``: extra
+    environment variables)."""
+    env = dict(os.environ, PYTHONPATH=str(REPO), PYTHONUNBUFFERED="1", **(env or {}))
     proc = subprocess.run([sys.executable, "-m", "backend", *map(str, args)], capture_output=True,
                           text=True, timeout=timeout, env=env, cwd=cwd or REPO)
     if check and proc.returncode != 0:

@@ -1,24 +1,112 @@
-"""Check that the chosen interpreter can run the backend."""
+"""The backend's interpreter: install one (a background job with progress and cancel), and
+check it without freezing Blender."""
+
+import json
+import sys
 
 import bpy
 
-from .. import ROOT_PACKAGE, interpreter
-from ..preferences import backend_python
+from .. import ROOT_PACKAGE, interpreter, jobs
+from ..errors import AddonInputError, require
+from ..preferences import backend_python, installed_venv
+from .modal import JobModal
 
 
-class SFT_OT_check_backend(bpy.types.Operator):
-    """Run '<python> -m backend check' and report what the interpreter is missing"""
+def _set_check_result(context, text: str) -> None:
+    addon = context.preferences.addons.get(ROOT_PACKAGE)
+    if addon and addon.preferences:
+        addon.preferences.check_result = text
+
+
+class SFT_OT_install_backend(JobModal, bpy.types.Operator):
+    """Create a private Python environment in the extension's user folder and install the
+    backend's pinned libraries into it (about 600 MB; needs the internet once)"""
+
+    bl_idname = "sft.install_backend"
+    bl_label = "Install Backend"
+
+    job_kind = "install"
+
+    @classmethod
+    def poll(cls, context):
+        job = jobs.ACTIVE.get("install")
+        if job is not None and job.running:
+            cls.poll_message_set("the backend is being installed")
+            return False
+        return True
+
+    def start(self, context) -> jobs.Job:
+        venv = installed_venv()
+        require(venv.parent.is_dir(), venv.parent, "the extension's user folder cannot be created",
+                "check the permissions of Blender's user folder")
+        _set_check_result(context, "")
+        # Blender's own Python creates the environment: it matches the Python the wheels need
+        return jobs.Job(sys.executable, [], None, kind=self.job_kind,
+                        argv=interpreter.install_command(venv, sys.executable))
+
+    def finish(self, context, job: jobs.Job):
+        if job.state.status != "done":
+            _set_check_result(context, f"Install {job.state.status}: {job.state.message}")
+            self.report({"ERROR"} if job.state.status == "failed" else {"WARNING"},
+                        f"Install Backend {job.state.status}: {job.state.message}")
+            return {"CANCELLED"}
+        check = interpreter.summarise_check(job.state.done.get("python", ""),
+                                            [json.dumps(job.state.done.get("check", {}))], [])
+        _set_check_result(context, check.summary)
+        self.report({"INFO"}, f"backend installed in {job.state.done.get('seconds', 0):.0f} s: {check.summary}")
+        return {"FINISHED"}
+
+
+class SFT_OT_install_backend_cancel(bpy.types.Operator):
+    """Stop the installation; the half-made environment is removed"""
+
+    bl_idname = "sft.install_backend_cancel"
+    bl_label = "Cancel Install"
+
+    @classmethod
+    def poll(cls, context):
+        job = jobs.ACTIVE.get("install")
+        return job is not None and job.running
+
+    def execute(self, context):
+        jobs.ACTIVE["install"].stop()
+        return {"FINISHED"}
+
+
+class CheckJob(jobs.Job):
+    """``<python> -m backend check``: the report is the one JSON object it prints."""
+
+    def __init__(self, python: str):
+        self.python = python
+        self.report: interpreter.CheckReport | None = None
+        super().__init__(python, ["check"], None, kind="check")
+
+    def on_finish(self, context):
+        log = list(self.process.log)
+        self.report = interpreter.summarise_check(self.python, log, log)
+
+
+class SFT_OT_check_backend(JobModal, bpy.types.Operator):
+    """Run '<python> -m backend check': the Mitsuba variant (CPU/LLVM or CUDA) or what is missing"""
 
     bl_idname = "sft.check_backend"
     bl_label = "Check Backend"
 
-    def execute(self, context):
-        report = interpreter.check(backend_python(context))
-        addon = context.preferences.addons.get(ROOT_PACKAGE)
-        if addon and addon.preferences:
-            addon.preferences.check_result = report.summary
+    job_kind = "check"
+
+    def start(self, context) -> jobs.Job:
+        python = backend_python(context)
+        if not interpreter.exists(python):
+            _set_check_result(context, f"{python}: interpreter not found. Fix: {interpreter.FIX_INSTALL}")
+            raise AddonInputError(python, "interpreter not found", interpreter.FIX_INSTALL)
+        _set_check_result(context, "Checking...")
+        return CheckJob(python)
+
+    def finish(self, context, job: jobs.Job):
+        report = job.report or interpreter.CheckReport(False, job.state.message or "no answer")
+        _set_check_result(context, report.summary)
         self.report({"INFO"} if report.ok else {"ERROR"}, report.summary)
         return {"FINISHED"} if report.ok else {"CANCELLED"}
 
 
-CLASSES = (SFT_OT_check_backend,)
+CLASSES = (SFT_OT_install_backend, SFT_OT_install_backend_cancel, SFT_OT_check_backend)

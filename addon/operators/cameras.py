@@ -9,7 +9,7 @@ from bpy_extras.io_utils import ImportHelper
 from .. import capture_file, interpreter, jobs, progress, world
 from .. import frames as fr
 from ..errors import AddonInputError, require
-from ..preferences import backend_python
+from ..preferences import backend_python, backend_ready
 from .common import abspath, capture_dir, fail
 from .modal import JobModal
 
@@ -34,13 +34,15 @@ def load_cameras(context, info: capture_file.CaptureInfo, show_frames: bool, wit
     return f"{len(info.frames)} cameras from {info.root}" + (", environment lit" if env_image else "")
 
 
-class SFT_OT_import_cameras(bpy.types.Operator, ImportHelper):
-    """Import cameras from capture.json, or (through the backend's importer) from a NeRF
-    transforms.json or a COLMAP model"""
+class SFT_OT_import_cameras(bpy.types.Operator, ImportHelper, JobModal):
+    """Import cameras from capture.json, or (through the backend's importer, in the
+    background) from a NeRF transforms.json, a COLMAP model, an IDR npz or Middlebury files"""
 
     bl_idname = "sft.import_cameras"
     bl_label = "Import Cameras"
     bl_options = {"REGISTER", "UNDO"}
+
+    job_kind = "import"
 
     filter_glob: StringProperty(default="*.json;*.bin;*.txt;*.npz", options={"HIDDEN"})
     out_dir: StringProperty(
@@ -51,29 +53,50 @@ class SFT_OT_import_cameras(bpy.types.Operator, ImportHelper):
     with_environment: BoolProperty(name="Environment", default=True,
                                    description="Light the World with the capture's environment map")
 
+    @classmethod
+    def poll(cls, context):
+        job = jobs.ACTIVE.get("import")
+        if job is not None and job.running:
+            cls.poll_message_set("cameras are being imported")
+            return False
+        return True
+
     def execute(self, context):
         try:
             source = abspath(self.filepath)
             require(source.exists(), source, "file not found", "choose capture.json, transforms.json or a COLMAP model")
             if source.name == capture_file.FILENAME or (source / capture_file.FILENAME).is_file():
-                info = capture_file.read_capture(source)
-            else:
-                info = capture_file.read_capture(self._convert(context, source))
-            summary = load_cameras(context, info, self.show_frames, self.with_environment)
+                summary = load_cameras(context, capture_file.read_capture(source), self.show_frames,
+                                       self.with_environment)
+                self.report({"INFO"}, summary)
+                return {"FINISHED"}
         except AddonInputError as err:
             return fail(self, err)
-        self.report({"INFO"}, summary)
-        return {"FINISHED"}
+        if bpy.app.background or context.window is None:  # other layouts: the backend converts them
+            return JobModal.execute(self, context)
+        return self.start_modal(context)
 
-    def _convert(self, context, source: Path) -> Path:
+    def start(self, context) -> jobs.Job:
+        source = abspath(self.filepath)
         require(interpreter.has_command("import"), source,
                 "the backend beside the add-on has no 'import' command to convert this layout",
                 "update the add-on, or convert the cameras to capture.json")
         folder = source if source.is_dir() else source.parent
-        out = abspath(self.out_dir) if self.out_dir else folder / "capture"
-        code, message = interpreter.run(backend_python(context), ["import", str(source), "--out", str(out)])
-        require(code == 0, source if code != 2 else None, message or f"backend import failed (exit {code})")
-        return out
+        self.out = abspath(self.out_dir) if self.out_dir else folder / "capture"
+        return jobs.Job(backend_python(context), ["import", str(source), "--out", str(self.out)], None,
+                        kind=self.job_kind)
+
+    def finish(self, context, job: jobs.Job):
+        if job.state.status != "done":
+            self.report({"ERROR"}, f"importing cameras {job.state.status}: {job.state.message}")
+            return {"CANCELLED"}
+        try:
+            summary = load_cameras(context, capture_file.read_capture(self.out), self.show_frames,
+                                   self.with_environment)
+        except AddonInputError as err:
+            return fail(self, err)
+        self.report({"INFO"}, summary)
+        return {"FINISHED"}
 
 
 class SFT_OT_solve_cameras(JobModal, bpy.types.Operator):
@@ -86,29 +109,46 @@ class SFT_OT_solve_cameras(JobModal, bpy.types.Operator):
 
     job_kind = "solve"
 
+    @classmethod
+    def poll(cls, context):
+        job = jobs.ACTIVE.get(cls.job_kind)
+        if job is not None and job.running:
+            cls.poll_message_set("the cameras are being solved")
+            return False
+        sft = context.scene.sft
+        capture = abspath(sft.capture_dir) if sft.capture_dir else None
+        if capture is None or not (capture / fr.MANIFEST).is_file():
+            cls.poll_message_set("import a video first (Import Video)")
+            return False
+        if not (capture / fr.MASKS).is_dir():
+            cls.poll_message_set("import the object masks first (Import Masks)")
+            return False
+        if not backend_ready(context):
+            cls.poll_message_set("no backend: press Install Backend in the add-on preferences")
+            return False
+        return True
+
     def start(self, context) -> jobs.Job:
         capture = capture_dir(context)
-        manifest = fr.read_manifest(capture)
+        fr.read_manifest(capture)
         require(interpreter.has_command("capture-from-video"), None,
                 "the backend beside the add-on has no 'capture-from-video' command (camera solving)",
                 "update the add-on, or solve the cameras elsewhere and use Import Cameras")
-        video = Path(manifest["video"])
-        require(video.is_file(), video, "the imported video is gone", "import the video again")
+        images, masks = capture / fr.IMAGES, capture / fr.MASKS
+        require(images.is_dir() and any(images.glob("*.png")), images, "no frames", "import the video again")
+        require(masks.is_dir() and any(masks.glob("*.png")), masks, "no masks",
+                "import the object masks (Import Masks) before solving")
         self.out = capture / "solved"
-        python = backend_python(context)
-        accepts = interpreter.command_options(python, "capture-from-video")
-        args = ["capture-from-video", str(video), "--out", str(self.out)]
-        if "--overwrite" in accepts:  # solving again replaces the earlier solution
-            args.append("--overwrite")
-        if (capture / fr.MASKS).is_dir() and "--masks" in accepts:
-            args += ["--masks", str(capture / fr.MASKS)]
+        # the kept frames with their masks, one each and paired by name order
+        args = ["capture-from-video", "--images", str(images), "--masks", str(masks), "--out", str(self.out),
+                "--overwrite"]
+        if (capture / fr.MATERIALS).is_dir() and any((capture / fr.MATERIALS).glob("*.png")):
+            args += ["--materials", str(capture / fr.MATERIALS)]  # per-material masks become material labels
         sft = context.scene.sft
-        if sft.env_path and "--env" in accepts:
-            args += ["--env", bpy.path.abspath(sft.env_path)]
-            for flag, value in (("--env-strength", sft.env_strength), ("--env-rotation", sft.env_rotation)):
-                if flag in accepts:
-                    args += [flag, str(value)]
-        return jobs.Job(python, args, self.out, kind=self.job_kind)
+        if sft.env_path:  # the map is aligned to the frames (rotation and strength estimated)
+            args += ["--env", str(abspath(sft.env_path))]
+        python = backend_python(context)
+        return jobs.Job(python, args, None, kind=self.job_kind)  # a stop is a SIGTERM: nothing half-written stays
 
     def finish(self, context, job: jobs.Job):
         if job.state.status != "done":
@@ -123,4 +163,21 @@ class SFT_OT_solve_cameras(JobModal, bpy.types.Operator):
         return {"FINISHED"}
 
 
-CLASSES = (SFT_OT_import_cameras, SFT_OT_solve_cameras)
+class SFT_OT_solve_cameras_cancel(bpy.types.Operator):
+    """Stop camera solving (the capture folder is left as it was)"""
+
+    bl_idname = "sft.solve_cameras_cancel"
+    bl_label = "Cancel"
+
+    @classmethod
+    def poll(cls, context):
+        job = jobs.ACTIVE.get("solve")
+        return job is not None and job.running
+
+    def execute(self, context):
+        jobs.ACTIVE["solve"].stop()
+        jobs.tag_redraw(context)
+        return {"FINISHED"}
+
+
+CLASSES = (SFT_OT_import_cameras, SFT_OT_solve_cameras, SFT_OT_solve_cameras_cancel)

@@ -1,5 +1,6 @@
 """Capture operators: video to frames, masks, environment map."""
 
+import json
 import shutil
 import tempfile
 from pathlib import Path
@@ -15,7 +16,9 @@ from ..errors import AddonInputError, require
 from ..files import png_bytes, replace_dir, write_atomic
 from ..images import luminance, read_rgba
 from ..video import VIDEO_SUFFIXES, render_frames, video_info
-from .common import abspath, capture_dir, fail
+from .common import Busy, abspath, capture_dir, fail
+
+CAPTURE_FILE = "capture.json"
 
 
 class SFT_OT_import_video(bpy.types.Operator, ImportHelper):
@@ -52,20 +55,23 @@ class SFT_OT_import_video(bpy.types.Operator, ImportHelper):
             require(self.overwrite or not (images.is_dir() and any(images.iterdir())), images,
                     "the capture folder already holds frames",
                     "enable Overwrite or choose another capture folder")
-            kept, blurred = self._extract(video, total, width, height, capture)
+            with Busy(context, "Import Video") as busy:
+                kept, blurred = self._extract(video, total, width, height, capture, busy)
         except AddonInputError as err:
             return fail(self, err)
         context.scene.sft.capture_dir = str(capture)
         self.report({"INFO"}, f"{kept} frames in {capture / fr.IMAGES} ({blurred} blurred skipped)")
         return {"FINISHED"}
 
-    def _extract(self, video: Path, total: int, width: int, height: int, capture: Path):
+    def _extract(self, video: Path, total: int, width: int, height: int, capture: Path, busy):
         capture.mkdir(parents=True, exist_ok=True)
         tmp = Path(tempfile.mkdtemp(prefix=".import-", dir=capture))
         try:
             picks = fr.pick_frames(total, self.every_nth, self.target_count)
-            files = render_frames(video, picks, tmp / "video")
+            files = render_frames(video, picks, tmp / "video",
+                                  lambda done, n: busy(0.8 * done, n, f"frame {done}/{n}"))
             scores = [fr.sharpness(luminance(read_rgba(f)[0])) for f in files]
+            busy(0.9, 1.0, "sharpness")
             keep = fr.sharp_enough(scores, self.blur_threshold)
             out = tmp / fr.IMAGES
             out.mkdir()
@@ -102,11 +108,24 @@ class SFT_OT_import_masks(bpy.types.Operator, ImportHelper):
         name="Material Label", default=0, min=0, max=255,
         description="0: object masks (masks/). 1-255: these masks mark material N (materials/)")
 
+    @classmethod
+    def poll(cls, context):
+        sft = context.scene.sft
+        capture = abspath(sft.capture_dir) if sft.capture_dir else None
+        if capture is None or not ((capture / fr.MANIFEST).is_file() or (capture / CAPTURE_FILE).is_file()):
+            cls.poll_message_set("import a video or cameras first")
+            return False
+        return True
+
     def execute(self, context):
         try:
             capture = capture_dir(context)
-            manifest = fr.read_manifest(capture)
-            written = self._import(capture, manifest, abspath(self.filepath))
+            source = abspath(self.filepath)
+            with Busy(context, "Import Masks"):
+                if not (capture / fr.MANIFEST).is_file() and (capture / CAPTURE_FILE).is_file():
+                    written = self._import_onto_cameras(capture, source)
+                else:
+                    written = self._import(capture, fr.read_manifest(capture), source)
         except AddonInputError as err:
             return fail(self, err)
         target = fr.MATERIALS if self.material else fr.MASKS
@@ -149,6 +168,57 @@ class SFT_OT_import_masks(bpy.types.Operator, ImportHelper):
                     write_atomic(out / f"{frame['name']}.png", png_bytes(mask.astype(np.uint8) * 255))
             require(covered > 0, source, "every mask is empty", "masks mark the object in white (or alpha)")
             replace_dir(out, capture / target)
+            return len(frames)
+        finally:
+            shutil.rmtree(tmp, ignore_errors=True)
+
+
+    def _import_onto_cameras(self, capture: Path, source: Path) -> int:
+        """Masks for a capture of imported cameras (capture.json): one per frame, in name
+        order, written beside it and named in capture.json (``mask`` or ``material_mask``)."""
+        path = capture / CAPTURE_FILE
+        try:
+            doc = json.loads(path.read_text())
+            frames = doc["frames"]
+            names = [str(f.get("name", f"{i:04d}")) for i, f in enumerate(frames)]
+            sizes = [(int(f["camera"]["height"]), int(f["camera"]["width"])) for f in frames]
+        except (OSError, ValueError, KeyError, TypeError) as err:
+            raise AddonInputError(path, "cannot read the capture's frames", "import the cameras again") from err
+        tmp = Path(tempfile.mkdtemp(prefix=".masks-", dir=capture))
+        try:
+            if source.suffix.lower() in VIDEO_SUFFIXES:
+                count = video_info(source)[0]
+                require(count == len(frames), source, f"{count} masks for {len(frames)} frames",
+                        "give one mask per frame of the capture")
+                files = render_frames(source, list(range(count)), tmp / "video")
+            else:
+                files = fr.image_sequence(source)
+                require(len(files) == len(frames), files[0].parent, f"{len(files)} masks for {len(frames)} frames",
+                        "give one mask per frame of the capture (paired in name order)")
+            target, key = (fr.MATERIALS, "material_mask") if self.material else (fr.MASKS, "mask")
+            out = tmp / target
+            out.mkdir()
+            covered = 0
+            for i, (name, size, file) in enumerate(zip(names, sizes, files)):
+                rgba = read_rgba(file)[0]
+                require(rgba.shape[:2] == size, file,
+                        f"mask is {rgba.shape[1]}x{rgba.shape[0]}, frame {name} is {size[1]}x{size[0]}",
+                        "export the masks at the frames' size")
+                mask = fr.mask_from_rgba(rgba) > 0
+                covered += int(mask.any())
+                rel = f"{target}/{bpy.path.clean_name(name)}.png"
+                if self.material:
+                    previous = capture / frames[i].get("material_mask", "") if frames[i].get("material_mask") else None
+                    labels = (np.rint(read_rgba(previous)[0][..., 0] * 255).astype(np.uint8)
+                              if previous is not None and previous.is_file() else np.zeros(size, np.uint8))
+                    labels[mask] = self.material
+                    write_atomic(tmp / rel, png_bytes(labels))
+                else:
+                    write_atomic(tmp / rel, png_bytes(mask.astype(np.uint8) * 255))
+                frames[i][key] = rel
+            require(covered > 0, source, "every mask is empty", "masks mark the object in white (or alpha)")
+            replace_dir(out, capture / target)
+            write_atomic(path, json.dumps(doc, indent=1).encode())
             return len(frames)
         finally:
             shutil.rmtree(tmp, ignore_errors=True)

@@ -6,7 +6,7 @@ from bpy_extras.io_utils import ExportHelper
 
 from .. import export, scene_mesh
 from ..errors import AddonInputError, require
-from .common import abspath, fail
+from .common import Busy, abspath, fail, poll_reconstruction
 
 
 class SFT_OT_export_gltf(bpy.types.Operator, ExportHelper):
@@ -24,6 +24,10 @@ class SFT_OT_export_gltf(bpy.types.Operator, ExportHelper):
     texture_size: IntProperty(name="Texture Size", default=0, min=0, max=8192,
                               description="Baked texture width and height (0: automatic)")
 
+    @classmethod
+    def poll(cls, context):
+        return poll_reconstruction(cls, context)
+
     def invoke(self, context, event):
         if context.scene.sft.run_dir and not self.filepath:
             self.filepath = str(abspath(context.scene.sft.run_dir) / "reconstruction.glb")
@@ -35,8 +39,9 @@ class SFT_OT_export_gltf(bpy.types.Operator, ExportHelper):
             require(obj is not None and obj.type == "MESH" and len(obj.data.polygons) > 0, None,
                     f"no mesh object '{self.object_name}' to export", "run Reconstruct first")
             require(bool(self.filepath), None, "no output file", "choose a .glb file")
-            info = export.export_gltf(context, obj, abspath(self.filepath), self.bake, self.texture_size,
-                                      device=context.scene.sft.device)
+            with Busy(context, "Export glTF (baking)" if self.bake else "Export glTF"):
+                info = export.export_gltf(context, obj, abspath(self.filepath), self.bake, self.texture_size,
+                                          device=context.scene.sft.device)
         except AddonInputError as err:
             return fail(self, err)
         textures = f", {info['texture_size']} px textures" if info["texture_size"] else ", vertex colours"

@@ -16,6 +16,17 @@ TIMER_SECONDS = 0.2
 class JobModal:
     job_kind = "job"
 
+    def status_text(self, job: jobs.Job) -> str:
+        """The status bar's line while the job runs."""
+        state = job.state
+        return (f"{self.bl_label}: {state.headline()}  {state.fraction:.0%}  {state.eta_text()}"
+                "  (Esc: cancel)")
+
+    def _status(self, context, text: str | None) -> None:
+        workspace = getattr(context, "workspace", None)
+        if workspace is not None:
+            workspace.status_text_set(text)
+
     def start(self, context) -> jobs.Job:
         raise NotImplementedError
 
@@ -44,6 +55,10 @@ class JobModal:
     def invoke(self, context, event):
         if bpy.app.background or context.window is None:
             return self.execute(context)
+        return self.start_modal(context)
+
+    def start_modal(self, context):
+        """Start the job and follow it on a window timer (the UI stays responsive)."""
         try:
             self._job = self._begin(context)
         except AddonInputError as err:
@@ -51,6 +66,7 @@ class JobModal:
         wm = context.window_manager
         self._timer = wm.event_timer_add(TIMER_SECONDS, window=context.window)
         wm.modal_handler_add(self)
+        self._status(context, self.status_text(self._job))
         jobs.tag_redraw(context)
         return {"RUNNING_MODAL"}
 
@@ -62,9 +78,11 @@ class JobModal:
         if event.type != "TIMER":
             return {"PASS_THROUGH"}
         if self._job.step(context):
+            self._status(context, self.status_text(self._job))
             jobs.tag_redraw(context)
             return {"PASS_THROUGH"}
         context.window_manager.event_timer_remove(self._timer)
+        self._status(context, None)
         jobs.tag_redraw(context)
         return self.finish(context, self._job)
 
@@ -72,3 +90,4 @@ class JobModal:
         """Blender ends the operator (its window closes): stop the backend cleanly; the
         last snapshot stays on disk."""
         jobs.stop_unattended(self._job)
+        self._status(context, None)

@@ -5,7 +5,7 @@ from bpy.props import StringProperty
 
 from .. import capture_file, preview, scene_mesh, world
 from ..errors import AddonInputError, require
-from .common import abspath, capture_dir, fail
+from .common import Busy, abspath, capture_dir, fail, poll_reconstruction
 
 
 class SFT_OT_relit_preview(bpy.types.Operator):
@@ -19,6 +19,10 @@ class SFT_OT_relit_preview(bpy.types.Operator):
     filepath: StringProperty(name="Output", subtype="FILE_PATH", default="",
                              description="PNG to write (empty: <run or capture>/preview/<frame>.png)")
     object_name: StringProperty(name="Object", default=scene_mesh.OBJECT_NAME)
+
+    @classmethod
+    def poll(cls, context):
+        return poll_reconstruction(cls, context, needs_capture=True)
 
     def execute(self, context):
         sft = context.scene.sft
@@ -43,9 +47,11 @@ class SFT_OT_relit_preview(bpy.types.Operator):
             out = abspath(self.filepath) if self.filepath else base / "preview" / f"{frame.name}.png"
             rendered = out.with_name(f"{out.stem}_render.png")
             out.parent.mkdir(parents=True, exist_ok=True)
-            preview.render(context, obj, info, sft.preview_frame, env, not sft.preview_env,
-                           sft.preview_samples, sft.preview_percentage, sft.device, rendered)
-            width, height = preview.side_by_side(rendered, frame.image, out)
+            with Busy(context, f"Relit Preview ({sft.preview_samples} samples)") as busy:
+                preview.render(context, obj, info, sft.preview_frame, env, not sft.preview_env,
+                               sft.preview_samples, sft.preview_percentage, sft.device, rendered)
+                busy(0.9)
+                width, height = preview.side_by_side(rendered, frame.image, out)
         except AddonInputError as err:
             return fail(self, err)
         preview.show(out)

@@ -12,18 +12,50 @@ from bpy.props import StringProperty
 
 from .. import interpreter, jobs, progress, scene_mesh
 from ..errors import AddonInputError, require
-from ..preferences import backend_python
+from ..preferences import backend_python, backend_ready
 from .common import abspath, capture_dir
 from .modal import JobModal
 
 
-def reconstruct_args(capture: Path, run: Path, preset: str | None, extra: str = "") -> list[str]:
-    """The backend command line (docs/protocol.md): ``reconstruct CAPTURE --out RUN ...``."""
+def reconstruct_args(capture: Path, run: Path, preset: str | None, extra: str = "",
+                     method: list[str] | tuple = ()) -> list[str]:
+    """The backend command line (docs/protocol.md): ``reconstruct CAPTURE --out RUN ...``;
+    ``method`` holds the panel's settings, ``extra`` (Advanced) comes last and wins."""
     try:
         options = shlex.split(extra)
     except ValueError as err:
         raise AddonInputError(None, f"extra arguments: {err}", "fix the quoting") from err
-    return ["reconstruct", str(capture), "--out", str(run), *(["--preset", preset] if preset else []), *options]
+    return ["reconstruct", str(capture), "--out", str(run), *(["--preset", preset] if preset else []),
+            *method, *options]
+
+
+INIT_OPTIONS = {"CARVE": "carve", "SPHERE": "sphere", "POINTS": "points"}
+
+
+def method_args(sft, init_mesh: Path | None = None) -> list[str]:
+    """The panel's method settings as backend options: budget, material, start, effects, lighting."""
+    args = []
+    if sft.time_budget > 0:
+        args += ["--time-budget", f"{sft.time_budget:g}"]
+    args += ["--material", "staged" if sft.material == "FULL" else "constant"]
+    if init_mesh is not None:
+        args += ["--init", str(init_mesh)]
+    elif sft.init in INIT_OPTIONS:
+        args += ["--init", INIT_OPTIONS[sft.init]]
+    args += ["--effects", sft.effects.lower()]
+    if sft.env_path:
+        args += ["--env", str(abspath(sft.env_path)), "--env-strength", f"{sft.env_strength:g}",
+                 "--env-rotation", f"{sft.env_rotation:g}"]
+    return args
+
+
+def initial_object(context):
+    """The mesh object Initialisation = Blender Object starts from: the chosen one, else the active one."""
+    sft = context.scene.sft
+    obj = sft.init_object or context.active_object
+    require(obj is not None and obj.type == "MESH" and obj.name != scene_mesh.OBJECT_NAME, None,
+            "no mesh object to start from", "choose one under Initialisation, or select a mesh object")
+    return obj
 
 
 def resume_args(run: Path) -> list[str]:
@@ -48,6 +80,24 @@ def resumable(run_dir: str) -> bool:
     try:
         resume_args(abspath(run_dir))
     except AddonInputError:
+        return False
+    return True
+
+
+def _poll_reconstruct(cls, context) -> bool:
+    job = jobs.ACTIVE.get("reconstruct")
+    if job is not None and job.running:
+        cls.poll_message_set("a reconstruction is running")
+        return False
+    sft = context.scene.sft
+    if not sft.capture_dir:
+        cls.poll_message_set("import a video and solve its cameras, or import cameras, first")
+        return False
+    if not (abspath(sft.capture_dir) / "capture.json").is_file():
+        cls.poll_message_set("the capture has no cameras yet: Solve Cameras or Import Cameras")
+        return False
+    if not backend_ready(context):
+        cls.poll_message_set("no backend: press Install Backend in the add-on preferences")
         return False
     return True
 
@@ -99,6 +149,10 @@ class SFT_OT_reconstruct(_ReconstructModal, bpy.types.Operator):
     run_dir: StringProperty(name="Run Folder", subtype="DIR_PATH", default="",
                             description="Output folder (empty: <capture>/runs/<date-time>)")
 
+    @classmethod
+    def poll(cls, context):
+        return _poll_reconstruct(cls, context)
+
     def start(self, context) -> jobs.Job:
         capture = capture_dir(context, self.capture_dir)
         require(interpreter.has_command("reconstruct"), None,
@@ -108,11 +162,16 @@ class SFT_OT_reconstruct(_ReconstructModal, bpy.types.Operator):
         run = abspath(self.run_dir) if self.run_dir else capture / "runs" / time.strftime("%Y%m%d-%H%M%S")
         require(not (run.is_dir() and any(run.iterdir())), run, "run folder is not empty",
                 "choose a new run folder")
-        python = backend_python(context)
-        preset = sft.preset if "--preset" in interpreter.command_options(python, "reconstruct") else None
-        args = reconstruct_args(capture, run, preset, sft.extra_args)
-        if preset is None:
-            self.report({"WARNING"}, "the backend's reconstruct has no --preset option: it runs with its defaults")
+        require((capture / "capture.json").is_file(), capture, "the capture has no cameras yet",
+                "solve the cameras (Solve Cameras) or import them first")
+        init_mesh = None
+        if sft.init == "OBJECT":
+            obj = initial_object(context)
+            init_mesh = capture / "initial" / f"{bpy.path.clean_name(obj.name)}.ply"
+            faces = scene_mesh.export_object_mesh(context, obj, init_mesh)
+            require(faces >= 4, None, f"object '{obj.name}' has {faces} faces", "choose a closed mesh object")
+        preset = None if sft.preset == "auto" else sft.preset
+        args = reconstruct_args(capture, run, preset, sft.extra_args, method_args(sft, init_mesh))
         return self.launch(context, args, run)
 
 

@@ -67,7 +67,7 @@ class SFT_PT_cameras(_Panel, bpy.types.Panel):
 
     def draw(self, context):
         layout = self.layout
-        running = _draw_job(layout, jobs.ACTIVE.get("solve"))
+        running = _draw_job(layout, jobs.ACTIVE.get("solve"), cancel="sft.solve_cameras_cancel")
         col = layout.column(align=True)
         col.enabled = not running
         col.operator("sft.import_cameras", icon="CAMERA_DATA")
@@ -88,13 +88,24 @@ class SFT_PT_reconstruct(_Panel, bpy.types.Panel):
         running = job is not None and job.running
         col = layout.column()
         col.enabled = not running
-        col.row().prop(sft, "preset", expand=True)
+        col.prop(sft, "preset")
         calibration = presets.calibration()
         box = col.box().column(align=True)
         for key, label, _ in presets.PRESETS:
             box.label(text=f"{label}: {presets.describe(key, calibration)}",
                       icon="RADIOBUT_ON" if key == sft.preset else "RADIOBUT_OFF")
-        col.prop(sft, "extra_args")
+        box.label(text="Times measured on a point-lit object; HDR-lit captures take longer", icon="INFO")
+        col.prop(sft, "time_budget", text="Time Budget (min, 0 = until converged)")
+        col.prop(sft, "material")
+        col.prop(sft, "init")
+        if sft.init == "OBJECT":
+            col.prop(sft, "init_object")
+        col.prop(sft, "effects")
+        if sft.env_path:
+            col.label(text=f"Lighting: {Path(sft.env_path).name} x{sft.env_strength:g} {sft.env_rotation:g}°",
+                      icon="WORLD_DATA")
+        else:
+            col.label(text="No lighting: Import Environment Map", icon="ERROR")
         if not running:
             row = layout.row(align=True)
             row.operator("sft.reconstruct", icon="PLAY")
@@ -105,6 +116,16 @@ class SFT_PT_reconstruct(_Panel, bpy.types.Panel):
         if obj is not None and obj.type == "MESH" and obj.data.polygons:
             layout.label(text=f"{len(obj.data.polygons)} faces", icon="MESH_DATA")
             layout.operator("sft.export_gltf", icon="EXPORT")
+
+
+class SFT_PT_reconstruct_advanced(_Panel, bpy.types.Panel):
+    bl_idname = "SFT_PT_reconstruct_advanced"
+    bl_label = "Advanced"
+    bl_parent_id = "SFT_PT_reconstruct"
+    bl_options = {"DEFAULT_CLOSED"}
+
+    def draw(self, context):
+        self.layout.prop(context.scene.sft, "extra_args")
 
 
 class SFT_PT_preview(_Panel, bpy.types.Panel):
@@ -127,4 +148,4 @@ class SFT_PT_preview(_Panel, bpy.types.Panel):
         layout.operator("sft.relit_preview", icon="RENDER_STILL")
 
 
-CLASSES = (SFT_PT_capture, SFT_PT_cameras, SFT_PT_reconstruct, SFT_PT_preview)
+CLASSES = (SFT_PT_capture, SFT_PT_cameras, SFT_PT_reconstruct, SFT_PT_reconstruct_advanced, SFT_PT_preview)

@@ -170,7 +170,7 @@ def run_pipeline(args, orbit: Path) -> dict:
     extra = args.reconstruct_args.split()
     start = time.perf_counter()
     _run(["-m", "backend", "reconstruct", capture, "--out", run, "--overwrite", "--time-budget", f"{budget:.2f}",
-          *extra], "reconstruct")
+          "--material", "constant", *extra], "reconstruct")
     reconstruct_s = time.perf_counter() - start
     report = json.loads((run / "report.json").read_text())
     print(f"  reconstruct: budget {budget:.1f} min, {reconstruct_s / 60:.1f} min, "

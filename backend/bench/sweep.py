@@ -56,7 +56,7 @@ class Setting:
 
     def args(self) -> list[str]:
         """The ``reconstruct`` options of this setting."""
-        out = ["--preset", self.preset]
+        out = ["--preset", self.preset, "--material", "constant"]  # the sweep scores one constant material
         for f in dataclasses.fields(self):
             value = getattr(self, f.name)
             if f.name in ("name", "preset", "max_depth") or value is None:

@@ -1,11 +1,11 @@
-"""``capture-from-video VIDEO --masks MASKS --env HDR --out CAPTURE``: a capture from a phone video.
+"""``capture-from-video VIDEO --masks MASKS [--env HDR] --out CAPTURE``: a capture from a phone video.
 
 Frames are picked (by stride or count, the sharpest of each stretch, blurred ones dropped),
 cameras solved by SfM (pycolmap, one shared camera with radial distortion), frames and
 masks undistorted, and the scene levelled, centred and scaled from the masks' visual hull
 (Z up, object at the origin, about 1 unit across). ``--images DIR`` takes already
 extracted frames instead of a video. Masks are a folder of images or a video with one mask
-per source frame, paired by index (files in name order). The environment map is copied and
+per source frame, paired by index (files in name order). The environment map (optional) is copied and
 aligned with the frames (rotation about Z and strength, :mod:`backend.lighting`) against the
 masks' visual hull; ``--env-rotation`` gives a known rotation (the strength is still
 estimated) and ``--no-align-lighting`` keeps the given rotation (default 0) and strength 1.
@@ -15,31 +15,11 @@ Inputs are checked before any work starts; the output folder appears only when c
 
 from __future__ import annotations
 
-import shutil
-from dataclasses import dataclass
 from pathlib import Path
 
-import numpy as np
-
-from .. import fsio
-from ..capture import load_capture
-from ..capture.convert import convert
-from ..capture.format import FILENAME, save_capture
-from ..capture.images import read_mask, read_rgba, write_mask
-from ..capture.importers.common import opencv_camera
-from ..capture.model import Capture, Environment, Frame
-from ..capture.undistort import needs_resampling, pinhole, resample
-from ..capture.validate import validate_environment
-from ..errors import require
+from ..capture.format import FILENAME
 from ..events import Emitter
-from ..geometry.mesh import Mesh, save_mesh
-from ..video.frames import Source, check_masks, open_source, pick_frames
-from ..video.scene_frame import scene_frame
-from ..video.sfm import SfmOptions, SfmResult, solve
-
-DEFAULT_VIDEO_FRAMES = 60
-HULL_FACES = 3000  # the coarse mesh the lighting is aligned against
-HULL_GRID = 64
+from ..video.inputs import DEFAULT_VIDEO_FRAMES, add_lighting_arguments, check_inputs, lighting_summary, write_capture
 
 
 def add_arguments(parser):
@@ -47,8 +27,12 @@ def add_arguments(parser):
     parser.add_argument("--images", metavar="DIR", help="a folder of already extracted frames instead of a video")
     parser.add_argument("--masks", required=True, metavar="MASKS",
                         help="object masks, one per source frame: a folder of images (name order) or a video")
-    parser.add_argument("--env", required=True, metavar="HDR",
-                        help="equirectangular HDR map of the lighting (EXR or HDR)")
+    parser.add_argument("--env", metavar="HDR",
+                        help="equirectangular HDR map of the lighting (EXR or HDR), aligned to the frames; "
+                             "without it the capture holds cameras only (give the map to reconstruct --env)")
+    parser.add_argument("--materials", metavar="DIR",
+                        help="material label images (0 = unassigned, 1-255 = material), named like the frames "
+                             "(with --images); they become the capture's material masks")
     parser.add_argument("--out", required=True, metavar="CAPTURE", help="new capture folder to write")
     pick = parser.add_mutually_exclusive_group()
     pick.add_argument("--frames", type=int, metavar="N",
@@ -61,69 +45,6 @@ def add_arguments(parser):
     add_lighting_arguments(parser)
 
 
-def add_lighting_arguments(parser):
-    parser.add_argument("--env-rotation", type=float, metavar="DEG",
-                        help="known rotation of the environment about Z (degrees); only its strength is estimated")
-    parser.add_argument("--no-align-lighting", dest="align_lighting", action="store_false",
-                        help="do not estimate the lighting: keep the rotation (--env-rotation, default 0) and strength 1")
-
-
-@dataclass
-class VideoInputs:
-    """Checked inputs of a capture from a video (or a folder of frames)."""
-
-    path: Path
-    is_folder: bool
-    frames: Source
-    masks: Source
-    environment: Environment
-    stride: int | None = None
-    count: int | None = None
-    blur_ratio: float = 0.5
-    max_size: int | None = None
-    align_lighting: bool = True
-    env_rotation: float | None = None
-
-
-def check_inputs(args, is_folder: bool | None = None) -> VideoInputs:
-    """Every check that needs no decoding: options, the sources, mask count and size, the map.
-
-    ``args`` needs ``masks`` and ``env``; the video is ``args.video`` or ``args.images``
-    (capture-from-video), or ``args.capture`` (reconstruct: a folder is taken as frames)."""
-    video, images = getattr(args, "video", None), getattr(args, "images", None)
-    if hasattr(args, "capture"):
-        path = Path(args.capture)
-        is_folder = path.is_dir()
-    else:
-        require((video is None) != (images is None), video or images,
-                "give either a VIDEO or --images DIR", "pass exactly one of them")
-        path = Path(images or video)
-        is_folder = images is not None
-        if is_folder:
-            require(path.is_dir(), path, "--images is not a folder", "give the folder of extracted frames")
-        else:
-            require(not path.is_dir(), path, "VIDEO is a folder", "give a video file, or the folder with --images")
-    frames_n, stride = getattr(args, "frames", None), getattr(args, "stride", None)
-    max_size, blur_ratio = getattr(args, "max_size", None), getattr(args, "blur_ratio", 0.5)
-    require(frames_n is None or frames_n >= 3, None, f"--frames {frames_n} is below 3", "give 3 or more")
-    require(stride is None or stride >= 1, None, f"--stride {stride} is below 1", "give 1 or more")
-    require(max_size is None or max_size >= 8, None, f"--max-size {max_size} is too small", "give at least 8 pixels")
-    require(0 <= blur_ratio < 1, None, f"--blur-ratio {blur_ratio} is outside [0, 1)", "give e.g. 0.5")
-    rotation = getattr(args, "env_rotation", None)
-    require(rotation is None or np.isfinite(rotation), None, "--env-rotation is not a finite number",
-            "give the rotation in degrees")
-    frames = open_source(path)
-    masks = open_source(args.masks)
-    check_masks(frames, masks)
-    env_path = Path(args.env)
-    environment = Environment(env_path, 1.0, rotation or 0.0)
-    validate_environment(Capture(root=env_path.parent, frames=[], environment=environment))
-    if stride is None and frames_n is None and not is_folder:
-        frames_n = DEFAULT_VIDEO_FRAMES
-    return VideoInputs(path, is_folder, frames, masks, environment, stride, frames_n, blur_ratio, max_size,
-                       getattr(args, "align_lighting", True), rotation)
-
-
 def run(args) -> int:
     inputs = check_inputs(args)
     emit = Emitter()
@@ -131,107 +52,7 @@ def run(args) -> int:
     written, sfm = write_capture(inputs, out, emit, overwrite=args.overwrite)
     emit("done", result=str(out / FILENAME), frames=len(written.frames), registered=sfm.registered,
          total=sfm.total, reprojection_error_px=sfm.reprojection_error_px, silhouettes=sfm.silhouettes,
-         lighting=_lighting_summary(written))
+         lighting=lighting_summary(written))
     return 0
 
 
-def write_capture(inputs: VideoInputs, out: Path, emit, overwrite: bool = False) -> tuple[Capture, SfmResult]:
-    """Frames, SfM, scene frame, undistortion and lighting alignment into the new folder ``out``."""
-    path, frames, masks = inputs.path, inputs.frames, inputs.masks
-    with fsio.atomic_dir(out, replace=overwrite) as tmp:
-        work = tmp / ".work"
-        emit("stage", stage="frames", source=str(path), frames=frames.count)
-        selection = pick_frames(frames, inputs.stride, inputs.count, inputs.blur_ratio)
-        require(len(selection.sharpness) == masks.count, masks.path,
-                f"{masks.count} masks for {len(selection.sharpness)} decoded frames of {path.name}",
-                "give one mask per source frame")
-        names = _write_frames(frames, masks, selection.indices, work, inputs.is_folder)
-        emit("frames", selected=selection.indices, blurred=selection.rejected)
-        sfm = solve([work / "frames" / f"{n}.png" for n in names], work / "sfm", SfmOptions(), emit, source=path,
-                    masks=[work / "masks" / f"{n}.png" for n in names])
-        emit("sfm", registered=sfm.registered, total=sfm.total,
-             reprojection_error_px=sfm.reprojection_error_px, method=sfm.method, silhouettes=sfm.silhouettes)
-        capture = _scene_capture(sfm, names, selection.indices, work, inputs.environment, masks.path)
-        capture.provenance.update(source="images" if inputs.is_folder else "video", path=str(path.resolve()),
-                                  masks=str(Path(masks.path).resolve()),
-                                  frames={"source_frames": frames.count, "stride": inputs.stride,
-                                          "count": inputs.count, "blur_ratio": inputs.blur_ratio,
-                                          "selected": selection.indices, "blurred": selection.rejected})
-        written = convert(capture, tmp, inputs.max_size)
-        shutil.rmtree(work)
-        if inputs.align_lighting:
-            align_capture_lighting(written, inputs.env_rotation, emit)
-        save_capture(written)
-        load_capture(tmp)  # what we wrote must read back and validate
-    return written, sfm
-
-
-def align_capture_lighting(capture: Capture, rotation_z_deg: float | None, emit) -> None:
-    """Estimate the environment's rotation (unless given) and strength against the masks' visual
-    hull, and record them (provenance "estimated") with the loss curve in the capture."""
-    from .. import variant
-    from ..geometry.init.carve import carve
-    from ..geometry.init.hull import HullConfig
-    from ..lighting.align import align_lighting
-
-    variant.choose()
-    emit("stage", stage="lighting")
-    hull = carve(capture, HULL_FACES, HullConfig(grid=HULL_GRID))
-    env = capture.environment
-    estimate = align_lighting(capture, hull, read_rgba(env.path)[0][..., :3], rotation_z_deg=rotation_z_deg,
-                              emit=emit)
-    capture.environment = Environment(env.path, estimate.strength, estimate.rotation_z_deg, "estimated")
-    capture.camera_response = estimate.response
-    capture.provenance["lighting"] = dict(estimate.provenance(), hull_faces=hull.n_faces,
-                                          rotation_given=rotation_z_deg is not None)
-
-
-def _lighting_summary(capture: Capture) -> dict:
-    lighting = capture.provenance.get("lighting", {})
-    return {"aligned": bool(lighting.get("aligned")), "rotation_z_deg": capture.environment.rotation_z_deg,
-            "strength": capture.environment.strength, "loss": lighting.get("loss")}
-
-
-def _write_frames(frames: Source, masks: Source, indices: list[int], work: Path, is_folder: bool) -> list[str]:
-    """Selected frames as PNG and their masks, named by source file stem or frame index."""
-    names = [frames.files[i].stem for i in indices] if is_folder else [f"{i:05d}" for i in indices]
-    require(len(set(names)) == len(names), frames.path, "two frames share a file name stem",
-            "give frames unique names (e.g. 0001.png, 0002.png)")
-    by_index = dict(zip(indices, names))
-    from PIL import Image
-
-    (work / "frames").mkdir(parents=True, exist_ok=True)
-    for i, rgb in frames.frames(indices):
-        Image.fromarray(rgb).save(work / "frames" / f"{by_index[i]}.png")
-    for i, mask in masks.masks(indices):
-        write_mask(work / "masks" / f"{by_index[i]}.png", mask)
-    return names
-
-
-def _scene_capture(sfm: SfmResult, names: list[str], indices: list[int], work: Path,
-                   environment: Environment, mask_source: Path) -> Capture:
-    """Registered frames with their cameras in the scene frame, the sparse points, provenance."""
-    registered = [n for n in names if n in sfm.poses]
-    K = np.array([[sfm.fx, 0, sfm.cx], [0, sfm.fy, sfm.cy], [0, 0, 1.0]])
-    cameras = [opencv_camera(K, sfm.poses[n][:, :3], sfm.poses[n][:, 3], sfm.width, sfm.height,
-                             pixel_offset=0.0, distortion=sfm.distortion) for n in registered]
-
-    def undistorted_masks():
-        for name, camera in zip(registered, cameras):
-            mask = read_mask(work / "masks" / f"{name}.png")
-            yield resample(mask, camera) if needs_resampling(camera) else mask
-
-    frame = scene_frame([pinhole(c) for c in cameras], undistorted_masks(), sfm.points, where=mask_source)
-    frames = [Frame(n, work / "frames" / f"{n}.png", frame.camera(c), mask=work / "masks" / f"{n}.png")
-              for n, c in zip(registered, cameras)]
-    points = work / "points.ply"
-    save_mesh(points, Mesh(frame.point(sfm.points), np.zeros((0, 3), np.int64)))
-    unregistered = [i for i, n in zip(indices, names) if n not in sfm.poses]
-    provenance = {
-        "sfm": dict(sfm.summary(), unregistered=unregistered),
-        "scene_frame": {"world_from_sfm": frame.matrix.tolist(), "scale": frame.scale, "up": frame.up_from,
-                        "size": frame.size_from},
-        "lighting": {"aligned": False,
-                     "note": "environment rotation and strength as given (default 0 and 1), not estimated"},
-    }
-    return Capture(work, frames, environment, points, provenance)

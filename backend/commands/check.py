@@ -26,6 +26,11 @@ def run(args) -> int:
 
         try:
             report["variant"] = variant.choose(args.variant)
+            import drjit as dr
+
+            report["cuda"] = bool(dr.has_backend(dr.JitBackend.CUDA))
+            if report["variant"].startswith("llvm"):
+                report["llvm_version"] = ".".join(map(str, dr.detail.llvm_version()))
         except Exception as err:
             report["missing"].append(f"mitsuba variant ({err})")
     report["ok"] = not report["missing"]

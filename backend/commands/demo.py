@@ -63,7 +63,7 @@ def run(args) -> int:
     else:
         print(f"[synth] reusing {capture}")
     _follow(["reconstruct", str(capture), "--out", str(run_dir), "--preset", "balanced",
-             "--time-budget", str(args.minutes), "--overwrite"], "reconstruct")
+             "--material", "constant", "--time-budget", str(args.minutes), "--overwrite"], "reconstruct")
     from .. import fsio
     from .evaluate import evaluate, json_safe, table
 

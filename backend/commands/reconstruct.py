@@ -3,10 +3,18 @@
 Writes the run folder of docs/protocol.md: events.jsonl, snapshot.json + snapshots/,
 state/ (for --resume), result.ply and report.json. Exit codes: 0 done, 1 internal error,
 2 bad input, 130 cancelled (SIGTERM, SIGINT or RUN/STOP). ``reconstruct VIDEO --masks MASKS --env HDR``
-first writes RUN/capture as ``capture-from-video`` does (reused by --resume)."""
+first writes RUN/capture as ``capture-from-video`` does (reused by --resume).
+
+With no options it runs the whole method: the staged mesh-color material, effects measured
+on the scene, the Balanced preset (or, with --time-budget, the preset that fits it), and
+``RUN/result.glb``. ``--env HDR`` (with ``--env-strength`` and ``--env-rotation``) lights
+any capture with that map. ``$SFT_RECONSTRUCT_SETTINGS`` (a JSON object of settings, e.g.
+``{"max_size": 32}``) applies over the preset and under the options: tests and scripted
+runs shrink a run with it without changing the command line."""
 
 from __future__ import annotations
 
+import json
 import math
 import os
 from pathlib import Path
@@ -37,8 +45,12 @@ def add_arguments(parser):
                         help="capture folder (or any importable layout: transforms.json, COLMAP, IDR, Middlebury), "
                              "or a video (or folder of frames) with --masks and --env")
     parser.add_argument("--masks", metavar="MASKS", help="with a video: its object masks (folder of images or a video)")
-    parser.add_argument("--env", metavar="HDR", help="with a video: the equirectangular HDR map of the lighting")
-    from .capture_from_video import add_lighting_arguments
+    parser.add_argument("--env", metavar="HDR",
+                        help="equirectangular HDR map of the lighting: with a video it is aligned to the frames; "
+                             "with a capture folder it replaces the capture's lighting")
+    parser.add_argument("--env-strength", type=float, metavar="S",
+                        help="with a capture folder and --env: the map's strength (default 1)")
+    from ..video.inputs import add_lighting_arguments
 
     add_lighting_arguments(parser)
     parser.add_argument("--out", required=True, type=Path, metavar="RUN", help="run folder")
@@ -56,9 +68,11 @@ def add_arguments(parser):
     parser.add_argument("--coarse-size", type=int, metavar="PX",
                         help=f"long side of the first level's images ({d.coarse_size})")
     parser.add_argument("--views-per-step", type=int, metavar="K", help=f"views rendered per step ({d.views_per_step})")
-    parser.add_argument("--material", default=d.material,
-                        help="'auto' (one constant material, estimated), 'staged' (spatially varying mesh colors: "
-                             "constants, then diffuse, then specular) or known:ALBEDO_R,G,B:SPECULAR:ROUGHNESS")
+    parser.add_argument("--material", default=None,
+                        help="'staged' (the default: spatially varying mesh colors, fitted as constants, then "
+                             "diffuse, then specular; writes RUN/result.glb), 'constant' (one material for the "
+                             "whole object, estimated) or known:ALBEDO_R,G,B:SPECULAR:ROUGHNESS. A resumed run "
+                             "keeps the material it started with")
     parser.add_argument("--effects", default=d.effects,
                         help="light-transport effects: 'auto' (measured on the scene), 'all', or a list of "
                              "indirect, shadows, specular, silhouettes (prefix '-' to force one off, e.g. auto,-shadows)")
@@ -107,7 +121,9 @@ def config_from_args(args) -> ReconstructConfig:
     require(growth is None or (math.isfinite(growth) and growth > 1), None,
             f"--face-growth must be above 1 (got {growth})", "give e.g. --face-growth 1.5")
     values = dict(PRESETS[choose_preset(args)])
+    values.update(settings_from_environment())
     values.update({k: getattr(args, k) for k in OVERRIDES if getattr(args, k) not in (None, False)})
+    values["material"] = MATERIAL_ALIASES.get(values.get("material"), values.get("material")) or DEFAULT_MATERIAL
     if args.time_budget is not None:
         values["time_budget_s"] = 60.0 * args.time_budget
     config = ReconstructConfig(**values)
@@ -117,13 +133,50 @@ def config_from_args(args) -> ReconstructConfig:
     return config
 
 
-def video_inputs(args):
-    """The checked inputs of ``capture-from-video`` when PATH is a video with --masks and --env, else None."""
-    if args.masks is None and args.env is None:
+VIDEO_SUFFIXES = {".mp4", ".mov", ".m4v", ".avi", ".mkv", ".webm", ".mts", ".mpg", ".mpeg", ".ogv"}
+DEFAULT_MATERIAL = "staged"
+MATERIAL_ALIASES = {"constant": "auto", "full": "staged"}
+SETTINGS_VARIABLE = "SFT_RECONSTRUCT_SETTINGS"
+
+
+def settings_from_environment() -> dict:
+    """``$SFT_RECONSTRUCT_SETTINGS``: a JSON object of ReconstructConfig fields, checked."""
+    text = os.environ.get(SETTINGS_VARIABLE, "").strip()
+    if not text:
+        return {}
+    fix = f'set {SETTINGS_VARIABLE} to a JSON object such as {{"max_size": 32}}, or unset it'
+    try:
+        values = json.loads(text)
+    except ValueError:
+        raise InputError(None, f"${SETTINGS_VARIABLE} is not JSON", fix) from None
+    require(isinstance(values, dict), None, f"${SETTINGS_VARIABLE} is not a JSON object", fix)
+    known = set(ReconstructConfig.__dataclass_fields__)
+    unknown = sorted(set(values) - known)
+    require(not unknown, None, f"${SETTINGS_VARIABLE} names unknown settings: {', '.join(unknown)}", fix)
+    return values
+
+
+def resumed_material(run: Path) -> str | None:
+    """The material a run started with (its first ``start`` event), or None when unknown."""
+    try:
+        with open(Path(run) / "events.jsonl") as f:
+            for line in f:
+                event = json.loads(line)
+                if event.get("event") == "start":
+                    return (event.get("settings") or {}).get("material")
+    except (OSError, ValueError):
         return None
-    require(args.masks is not None and args.env is not None, args.capture,
-            "a video needs both --masks and --env", "give --masks MASKS and --env HDR, or a capture folder")
-    from .capture_from_video import check_inputs
+    return None
+
+
+def video_inputs(args):
+    """The checked inputs of ``capture-from-video`` when PATH is a video with --masks, else None."""
+    if args.masks is None:
+        path = Path(args.capture)
+        require(not (path.is_file() and path.suffix.lower() in VIDEO_SUFFIXES), path,
+                "a video needs its object masks", "give --masks MASKS (and the lighting with --env HDR)")
+        return None
+    from ..video.inputs import check_inputs
 
     return check_inputs(SimpleNamespace(capture=args.capture, masks=args.masks, env=args.env,
                                         env_rotation=args.env_rotation, align_lighting=args.align_lighting))
@@ -132,12 +185,36 @@ def video_inputs(args):
 def video_capture(inputs, folder, resume: bool, emit):
     """RUN/capture written from the video inputs (kept when resuming), loaded."""
     from ..capture.format import FILENAME, load_capture
-    from .capture_from_video import write_capture
+    from ..video.inputs import write_capture
 
     path = folder.path / "capture"
     if not (resume and (path / FILENAME).is_file()):
         write_capture(inputs, path, emit, overwrite=True)
     return load_capture(path)
+
+
+def relight(capture, args):
+    """The capture lit by ``--env`` (strength and rotation as given) when PATH is a capture folder."""
+    if args.env is None:
+        require(args.env_strength is None, None, "--env-strength needs --env", "give --env HDR as well")
+        return capture
+    from ..capture.model import Environment
+    from ..capture.validate import validate_environment
+
+    strength = 1.0 if args.env_strength is None else args.env_strength
+    require(math.isfinite(strength) and strength > 0, None, f"--env-strength must be above 0 (got {strength})",
+            "give the map's strength, e.g. 1")
+    rotation = args.env_rotation or 0.0
+    capture.environment = Environment(Path(args.env).resolve(), strength, rotation)
+    validate_environment(capture)
+    return capture
+
+
+def require_light(capture, source) -> None:
+    """A capture lit by nothing renders black and learns nothing: stop before any work."""
+    require(capture.environment is not None or capture.has_point_lights, source,
+            "the capture has no light source (no environment map, no point lights)",
+            "give the HDR map of the lighting with --env HDR (in Blender: Import Environment Map)")
 
 
 PATH_OPTIONS = ("--out", "--masks", "--env", "--init")
@@ -171,10 +248,16 @@ def run(args) -> int:
     from ..optimize.material import ConstantMaterial, parse_spec
     from ..optimize.run_folder import RunFolder
 
+    if args.resume and args.material is None:
+        args.material = resumed_material(args.out)
     config = config_from_args(args)
     parse_spec(config.material)  # bad input is reported before anything is written
     video = video_inputs(args)
-    capture = load_capture(args.capture) if video is None else None
+    capture = relight(load_capture(args.capture), args) if video is None else None
+    if capture is not None:
+        require_light(capture, args.capture)
+    elif video.environment is None:
+        require_light(SimpleNamespace(environment=None, has_point_lights=False), args.capture)
     chosen = variant.choose(args.variant)
     from ..optimize.appearance import Appearance
 

@@ -345,3 +345,58 @@ def test_a_level_whose_material_steps_diverge_goes_on_with_the_material_frozen(c
     level = json.loads((tmp_path / "run" / "report.json").read_text())["levels"][0]
     assert level["material_frozen_at"] == config.eval_every  # the first validation: absurd material steps
     assert level["loss"] < level["loss_start"]  # the surface went on improving
+
+
+TINY_SETTINGS = json.dumps({"max_size": 24, "coarse_size": 24, "initial_faces": 400, "spp": 4, "iterations": 30,
+                            "max_levels": 1, "level_iterations": 30, "validation_views": 2})
+
+
+def test_no_options_run_the_whole_method(capture, tmp_path):
+    """Bare ``reconstruct CAPTURE --out RUN``: staged mesh colors, measured effects, result.glb.
+    Sizes shrink through $SFT_RECONSTRUCT_SETTINGS, not through options."""
+    run = tmp_path / "run"
+    proc = run_cli("reconstruct", capture, "--out", run, env={"SFT_RECONSTRUCT_SETTINGS": TINY_SETTINGS},
+                   timeout=600)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    start_event = next(e for e in events(run) if e["event"] == "start")
+    assert start_event["settings"]["material"] == "staged" and start_event["settings"]["effects"] == "auto"
+    assert start_event["settings"]["max_size"] == 24
+    assert any(e["event"] == "effects" for e in events(run))
+    assert (run / "result.glb").is_file() and (run / "result.ply").is_file()
+    report = json.loads((run / "report.json").read_text())
+    assert report["material_schedule"]["schedule"], "the staged material schedule did not run"
+
+
+def test_settings_variable_is_checked(capture, tmp_path):
+    for value, expected in (("{max_size: 3", "is not JSON"), ('{"max_sise": 3}', "unknown settings: max_sise")):
+        proc = run_cli("reconstruct", capture, "--out", tmp_path / "r", env={"SFT_RECONSTRUCT_SETTINGS": value})
+        assert proc.returncode == 2 and expected in proc.stderr and "Fix:" in proc.stderr, proc.stderr
+        assert not (tmp_path / "r").exists()
+
+
+def test_a_capture_with_no_light_is_refused_and_env_lights_it(capture, tmp_path):
+    dark = tmp_path / "dark"
+    import shutil
+
+    shutil.copytree(capture, dark)
+    doc = json.loads((dark / "capture.json").read_text())
+    for frame in doc["frames"]:
+        frame.pop("lights", None)
+    doc.pop("environment", None)
+    (dark / "capture.json").write_text(json.dumps(doc))
+    run = tmp_path / "run"
+    proc = run_cli("reconstruct", dark, "--out", run, *FAST)
+    assert proc.returncode == 2, proc.stderr[-2000:]
+    line = proc.stderr.strip()
+    assert "\n" not in line and "no light source" in line and "--env HDR" in line and str(dark) in line
+    assert not run.exists()
+    from backend.capture.images import write_image
+    from backend.synth.procedural import sky
+
+    env = tmp_path / "sky.exr"
+    write_image(env, sky(64))
+    proc = run_cli("reconstruct", dark, "--out", run, *FAST, "--iterations", 3, "--max-levels", 1,
+                   "--env", env, "--env-strength", 0.5, "--env-rotation", 30)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    lights = next(e for e in events(run) if e["event"] == "effects")
+    assert lights["enabled"]["emitters"] == ["environment"], lights

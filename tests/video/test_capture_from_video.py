@@ -64,10 +64,14 @@ def test_reconstruct_from_video_rejects_mismatched_masks(tmp_path, env, masks_co
     assert proc.stdout == "" and not run.exists()
 
 
-def test_reconstruct_video_needs_masks_and_env(tmp_path, env):
+def test_reconstruct_video_needs_masks_and_a_light(tmp_path, env):
     video = write_video(tmp_path / "orbit.mp4", moving_frames(4, 96, 64))
     proc = run_cli("reconstruct", video, "--env", env, "--out", tmp_path / "run")
-    assert proc.returncode == 2 and "needs both --masks and --env" in proc.stderr
+    assert proc.returncode == 2 and "a video needs its object masks" in proc.stderr, proc.stderr
+    masks = _disc_masks(tmp_path / "masks", 4, 96, 64)
+    proc = run_cli("reconstruct", video, "--masks", masks, "--out", tmp_path / "run")
+    assert proc.returncode == 2 and "no light source" in proc.stderr and "--env HDR" in proc.stderr, proc.stderr
+    assert proc.stderr.strip().count("\n") == 0 and "Traceback" not in proc.stderr
     assert not (tmp_path / "run").exists()
 
 
