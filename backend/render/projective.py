@@ -1,0 +1,122 @@
+"""Projective integrators whose indirect-silhouette guiding is cheaper to build.
+
+Mitsuba's ``direct_projective`` / ``prb_projective`` with ``sppi > 0`` (shadow and
+indirect-silhouette gradients) build a guiding distribution over the boundary sample space
+(an octree by default) in every backward pass, per sensor. Its construction projects
+``guiding_seed_spp`` seed rays per pixel onto silhouette edges, then evaluates
+``guiding_leaf_samples`` points in every octree leaf. The distribution only steers where the
+boundary samples go (the estimate stays an importance-sampled one), so here it can be built
+from fewer samples and kept per sensor while the mesh moves little:
+
+- ``guiding_reuse``: build uses per sensor before a rebuild (1: Mitsuba's every pass).
+- ``guiding_move``: rebuild earlier once a vertex has moved this many mean edge lengths
+  since the build (0: no such check); a new connectivity always rebuilds.
+- ``guiding_seed_spp`` / ``guiding_leaf_samples``: Mitsuba's ``proj_seed_spp`` and
+  ``octree_extra_leaf_sample``.
+
+Registered as ``sft_direct_projective`` and ``sft_prb_projective``; every other property is
+the Mitsuba plugin's own."""
+
+from __future__ import annotations
+
+import time
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+from mitsuba.ad.integrators.direct_projective import DirectProjectiveIntegrator
+from mitsuba.ad.integrators.prb_projective import PathProjectiveIntegrator
+
+
+def _mesh_state(scene: mi.Scene) -> tuple[tuple, list[np.ndarray]]:
+    """(connectivity key, vertex positions) of the scene's differentiable silhouette shapes."""
+    key, positions = [], []
+    for shape in scene.silhouette_shapes():
+        if not shape.is_mesh():
+            continue
+        key.append((shape.id(), shape.vertex_count(), shape.face_count()))
+        positions.append(np.array(dr.detach(shape.vertex_positions_buffer())).reshape(-1, 3))
+    return tuple(key), positions
+
+
+def _mean_edge(scene: mi.Scene) -> float:
+    lengths = []
+    for shape in scene.silhouette_shapes():
+        if not shape.is_mesh():
+            continue
+        v = np.array(dr.detach(shape.vertex_positions_buffer())).reshape(-1, 3)
+        f = np.array(shape.faces_buffer()).reshape(-1, 3)
+        lengths.append(np.linalg.norm(v[f] - v[np.roll(f, 1, axis=1)], axis=-1).ravel())
+    return float(np.mean(np.concatenate(lengths))) if lengths else 0.0
+
+
+class ReusedGuiding(mi.ad.ProjectiveDetail):
+    """Mitsuba's projective helper with a per-sensor cache of the indirect guiding distribution."""
+
+    def __init__(self, parent, reuse: int = 1, move: float = 0.0):
+        super().__init__(parent)
+        self.reuse = max(1, int(reuse))
+        self.move = float(move)
+        self.cache: dict[int, dict] = {}
+        self.hold = False  # cache even when every pass rebuilds (a benchmark reads the last build)
+        self.builds = 0
+        self.build_seconds = 0.0  # wall time of the builds (each one ends in a sync)
+
+    def _stale(self, entry: dict | None, key: tuple, positions: list[np.ndarray]) -> bool:
+        if entry is None or entry["uses"] >= self.reuse or entry["key"] != key:
+            return True
+        if self.move > 0:
+            moved = max((float(np.max(np.linalg.norm(p - q, axis=1))) for p, q in zip(positions, entry["positions"])
+                         if len(p)), default=0.0)
+            return moved > self.move * entry["edge"]
+        return False
+
+    def init_indirect_silhouette(self, scene, sensor, seed):
+        if self.reuse == 1 and self.move <= 0 and not self.hold:
+            start = time.perf_counter()
+            super().init_indirect_silhouette(scene, sensor, seed)
+            dr.sync_thread()
+            self.builds += 1
+            self.build_seconds += time.perf_counter() - start
+            return
+        key, positions = _mesh_state(scene)
+        entry = self.cache.get(id(sensor))
+        if self._stale(entry, key, positions):
+            start = time.perf_counter()
+            super().init_indirect_silhouette(scene, sensor, seed)
+            dr.sync_thread()
+            self.builds += 1
+            self.build_seconds += time.perf_counter() - start
+            # the sensor is kept so its id is not reused while the entry lives
+            entry = {"distr": self.guiding_distr, "uses": 0, "key": key, "sensor": sensor,
+                     "positions": positions if self.move > 0 else [],
+                     "edge": _mean_edge(scene) if self.move > 0 else 0.0}
+            self.cache[id(sensor)] = entry
+        entry["uses"] += 1
+        self.guiding_distr = entry["distr"]
+
+    def clear(self) -> None:
+        self.cache.clear()
+        self.guiding_distr = None
+
+
+def _configure(integrator, props) -> None:
+    integrator.proj_detail = ReusedGuiding(integrator, props.get("guiding_reuse", 1), props.get("guiding_move", 0.0))
+    integrator.proj_seed_spp = props.get("guiding_seed_spp", integrator.proj_seed_spp)
+    integrator.octree_extra_leaf_sample = props.get("guiding_leaf_samples", integrator.octree_extra_leaf_sample)
+
+
+class ReusingDirectProjective(DirectProjectiveIntegrator):
+    def __init__(self, props):
+        super().__init__(props)
+        _configure(self, props)
+
+
+class ReusingPathProjective(PathProjectiveIntegrator):
+    def __init__(self, props):
+        super().__init__(props)
+        _configure(self, props)
+
+
+mi.register_integrator("sft_direct_projective", lambda props: ReusingDirectProjective(props))
+mi.register_integrator("sft_prb_projective", lambda props: ReusingPathProjective(props))
