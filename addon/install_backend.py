@@ -146,7 +146,8 @@ class Installer:
 
     def _check(self, python: str) -> dict:
         env = dict(os.environ, PYTHONPATH=str(self.package), PYTHONUNBUFFERED="1")
-        env.pop("PYTHONHOME", None)
+        for inherited in ("PYTHONHOME", "DRJIT_LIBLLVM_PATH"):  # the new environment must stand alone
+            env.pop(inherited, None)
         self.child = subprocess.Popen([python, "-m", "backend", "check"], stdout=subprocess.PIPE,
                                       stderr=subprocess.PIPE, text=True, cwd=str(self.package), env=env,
                                       stdin=subprocess.DEVNULL)

@@ -25,7 +25,13 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
     p.add_argument("source", type=Path, help="capture folder / capture.json / transforms.json / COLMAP model, or a video")
     p.add_argument("--out", type=Path, required=True, help=".blend file to write")
     p.add_argument("--python", help="interpreter that runs the backend (default: the add-on's automatic choice)")
-    p.add_argument("--preset", choices=["draft", "balanced", "final"], default="balanced")
+    method = p.add_argument_group("method (the Reconstruct panel's settings, same defaults)")
+    method.add_argument("--preset", choices=["auto", "draft", "balanced", "final"], default="auto",
+                        help="quality; auto: the most accurate preset that fits the time budget")
+    method.add_argument("--time-budget", type=float, default=30.0, help="minutes (0: until converged)")
+    method.add_argument("--material", choices=["full", "constant"], default="full")
+    method.add_argument("--init", choices=["auto", "carve", "sphere", "points"], default="auto")
+    method.add_argument("--effects", choices=["auto", "all"], default="auto")
     p.add_argument("--extra", default="", help="further 'python -m backend reconstruct' options, quoted")
     p.add_argument("--run", type=Path, help="run folder (default: <capture>/runs/<date-time>)")
     p.add_argument("--snapshot", type=Path,
@@ -33,7 +39,7 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
     video = p.add_argument_group("video input")
     video.add_argument("--capture", type=Path, help="capture folder for the frames (default: <video>_capture)")
     video.add_argument("--every-nth", type=int, default=10)
-    video.add_argument("--target-count", type=int, default=0)
+    video.add_argument("--target-count", type=int, default=40, help="frames to keep (0: every Nth)")
     video.add_argument("--blur-threshold", type=float, default=0.3)
     video.add_argument("--masks", type=Path, help="mask image sequence (one of its files) or mask video")
     lighting = p.add_argument_group("lighting")
@@ -48,6 +54,7 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
     preview.add_argument("--samples", type=int, default=32)
     preview.add_argument("--percentage", type=int, default=50, help="preview resolution, percent of the frame's")
     preview.add_argument("--device", choices=["AUTO", "CPU", "GPU"], default="AUTO")
+    p.add_argument("--gltf", type=Path, help="also export the result as binary glTF (baked textures) here")
     return p.parse_args(argv)
 
 
@@ -97,10 +104,13 @@ def run(args: argparse.Namespace) -> int:
         bpy.ops.sft.solve_cameras()
     else:
         bpy.ops.sft.import_cameras(filepath=str(source))
+        if args.masks:
+            bpy.ops.sft.import_masks(filepath=str(args.masks.resolve()))
         if args.env:
             bpy.ops.sft.import_environment(filepath=str(args.env.resolve()), strength=args.env_strength,
                                            rotation_z=args.env_rotation)
-    sft.preset = args.preset
+    sft.preset, sft.time_budget = args.preset, args.time_budget
+    sft.material, sft.init, sft.effects = args.material.upper(), args.init.upper(), args.effects.upper()
     sft.extra_args = args.extra
     status = "done"
     if args.snapshot:
@@ -131,6 +141,9 @@ def run(args: argparse.Namespace) -> int:
         preview = args.preview.resolve() if args.preview else out.with_suffix(".preview.png")
         bpy.ops.sft.relit_preview(filepath=str(preview))
         print(f"preview: {preview}")
+    if args.gltf:
+        bpy.ops.sft.export_gltf(filepath=str(args.gltf.resolve()))
+        print(f"glTF: {args.gltf.resolve()}")
     out.parent.mkdir(parents=True, exist_ok=True)
     bpy.ops.wm.save_as_mainfile(filepath=str(out), check_existing=False)
     print(f"saved: {out}")

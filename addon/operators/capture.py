@@ -21,6 +21,18 @@ from .common import Busy, abspath, capture_dir, fail
 CAPTURE_FILE = "capture.json"
 
 
+def _idle(cls) -> bool:
+    """Frames, masks and the map change under a running camera solve or reconstruction: wait."""
+    from .. import jobs
+
+    for kind, what in (("solve", "the cameras are being solved"), ("reconstruct", "a reconstruction is running")):
+        job = jobs.ACTIVE.get(kind)
+        if job is not None and job.running:
+            cls.poll_message_set(f"{what}: wait for it or cancel it")
+            return False
+    return True
+
+
 class SFT_OT_import_video(bpy.types.Operator, ImportHelper):
     """Turn a phone video into frames (every Nth frame or a target count, blurred frames
     skipped); the frames go to the capture folder's images/"""
@@ -35,13 +47,18 @@ class SFT_OT_import_video(bpy.types.Operator, ImportHelper):
         description="Where the frames go; empty: the scene's capture folder, else <video>_capture")
     every_nth: IntProperty(name="Every Nth Frame", default=10, min=1,
                            description="Keep every Nth frame (when Target Count is 0)")
-    target_count: IntProperty(name="Target Count", default=0, min=0,
-                              description="Frames to keep, spread evenly over the video (0: use Every Nth)")
+    target_count: IntProperty(name="Target Count", default=40, min=0,
+                              description="Frames to keep, spread evenly over the video, whatever its length "
+                                          "(0: use Every Nth)")
     blur_threshold: FloatProperty(
         name="Blur Threshold", default=0.3, min=0.0, max=1.0,
         description="Skip frames less sharp than this fraction of the median sharpness (0: keep all)")
     overwrite: BoolProperty(name="Overwrite", default=False,
                             description="Replace frames (and their masks) already in the capture folder")
+
+    @classmethod
+    def poll(cls, context):
+        return _idle(cls)
 
     def execute(self, context):
         try:
@@ -110,6 +127,8 @@ class SFT_OT_import_masks(bpy.types.Operator, ImportHelper):
 
     @classmethod
     def poll(cls, context):
+        if not _idle(cls):
+            return False
         sft = context.scene.sft
         capture = abspath(sft.capture_dir) if sft.capture_dir else None
         if capture is None or not ((capture / fr.MANIFEST).is_file() or (capture / CAPTURE_FILE).is_file()):
@@ -236,6 +255,10 @@ class SFT_OT_import_environment(bpy.types.Operator, ImportHelper):
                             description="Radiance multiplier (Background strength)")
     rotation_z: FloatProperty(name="Rotation Z", default=0.0, soft_min=-180.0, soft_max=180.0,
                               description="Rotation of the map about the world Z axis, degrees")
+
+    @classmethod
+    def poll(cls, context):
+        return _idle(cls)
 
     def execute(self, context):
         try:

@@ -304,7 +304,8 @@ def test_staged_material_runs_grow_faces_faster_unless_told_otherwise():
         argv = ["reconstruct", "capture", "--out", "run", *options]
         return config_from_args(build_parser(argv).parse_args(argv))
 
-    assert config().face_growth is None  # the paper's rule
+    assert config("--material", "constant").face_growth is None  # the paper's rule
+    assert config().face_growth == STAGED_FACE_GROWTH  # staged is the default
     assert config("--material", "staged").face_growth == STAGED_FACE_GROWTH
     assert config("--material", "staged", "--face-growth", "1.2").face_growth == 1.2
 

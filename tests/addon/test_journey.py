@@ -1,0 +1,114 @@
+"""The artist's journey, clicked with the defaults the panel shows, against the real backend:
+Import Video -> Import Masks -> Import Environment Map -> Solve Cameras -> Reconstruct ->
+Relit Preview -> Export glTF, on a small orbit video the project renders itself (Cycles,
+an icosphere with a procedural texture, under the project's procedural sky). Only the
+reconstruction's sizes shrink, through $SFT_RECONSTRUCT_SETTINGS (the backend's own
+setting), never through Extra Arguments."""
+
+from __future__ import annotations
+
+import json
+import re
+import shutil
+import struct
+import subprocess
+import sys
+from pathlib import Path
+
+import bpy
+import numpy as np
+import pytest
+from PIL import Image
+
+from .conftest import REPO
+
+TINY = {"max_size": 48, "coarse_size": 32, "initial_faces": 400, "spp": 4, "iterations": 40, "max_levels": 2,
+        "level_iterations": 20, "validation_views": 2}
+
+
+@pytest.fixture(scope="module")
+def orbit(tmp_path_factory) -> Path:
+    """A 40-frame orbit video with index-paired masks and the HDR map it was lit by."""
+    out = tmp_path_factory.mktemp("journey")
+    from backend.capture.images import write_image
+    from backend.synth.procedural import sky
+
+    write_image(out / "sky.exr", sky(256))
+    proc = subprocess.run([sys.executable, str(REPO / "scripts" / "render_orbit.py"), "--out", str(out / "orbit"),
+                           "--env", str(out / "sky.exr"), "--frames", "40", "--size", "320x180", "--samples", "2",
+                           "--denoise", "none"], capture_output=True, text=True, timeout=900, cwd=REPO)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    return out
+
+
+def _reports(capfd) -> str:
+    out, err = capfd.readouterr()
+    return out + err
+
+
+def _glb_json(path: Path) -> dict:
+    data = path.read_bytes()
+    assert data[:4] == b"glTF"
+    length, kind = struct.unpack_from("<I4s", data, 12)
+    assert kind == b"JSON"
+    return json.loads(data[20:20 + length])
+
+
+def test_the_whole_journey_with_the_panels_defaults(context, extension, orbit, tmp_path, monkeypatch, capfd):
+    monkeypatch.setenv("SFT_RECONSTRUCT_SETTINGS", json.dumps(TINY))
+    video = shutil.copy(orbit / "orbit" / "orbit.mp4", tmp_path / "orbit.mp4")
+    sft = context.scene.sft
+    assert (sft.preset, sft.material, sft.init, sft.effects) == ("auto", "FULL", "AUTO", "AUTO")
+    assert sft.time_budget == 30 and sft.extra_args == ""
+
+    assert bpy.ops.sft.import_video(filepath=str(video)) == {"FINISHED"}
+    capture = Path(sft.capture_dir)
+    assert capture == tmp_path / "orbit_capture"
+    frames = sorted((capture / "images").glob("*.png"))
+    assert 30 <= len(frames) <= 40, "Target Count 40 keeps about 40 frames (blurred ones dropped)"
+    assert re.search(r"\d+ frames in .*images", _reports(capfd))
+
+    assert bpy.ops.sft.import_masks(filepath=str(orbit / "orbit" / "masks" / "0000.png")) == {"FINISHED"}
+    assert len(list((capture / "masks").glob("*.png"))) == len(frames)
+    assert bpy.ops.sft.import_environment(filepath=str(orbit / "sky.exr")) == {"FINISHED"}
+    assert Path(sft.env_path).name == "sky.exr"
+    assert "World lit by sky.exr" in _reports(capfd)
+
+    assert bpy.ops.sft.solve_cameras() == {"FINISHED"}
+    text = _reports(capfd)
+    solved = Path(sft.capture_dir)
+    assert solved == capture / "solved" and (solved / "capture.json").is_file()
+    registered = int(re.search(r"solved: (\d+) cameras", text).group(1))
+    assert registered >= 0.8 * len(frames), text[-2000:]
+    doc = json.loads((solved / "capture.json").read_text())
+    assert doc["environment"]["provenance"] == "estimated", "the HDR map was not aligned to the frames"
+    assert sft.env_path and Path(sft.env_path).parent == solved, "the aligned map did not reach the scene"
+
+    assert bpy.ops.sft.reconstruct() == {"FINISHED"}
+    text = _reports(capfd)
+    assert "reconstruction done" in text, text[-3000:]
+    run = Path(sft.run_dir)
+    events = [json.loads(line) for line in (run / "events.jsonl").read_text().splitlines()]
+    settings = next(e for e in events if e["event"] == "start")["settings"]
+    assert settings["material"] == "staged" and settings["effects"] == "auto" and settings["max_size"] == 48
+    assert settings["time_budget_s"] == 1800
+    argv = json.loads((run / "command.json").read_text())["argv"]
+    assert "--env" in argv and argv[argv.index("--env") + 1] == sft.env_path, "the HDR map never reached the backend"
+    assert (run / "result.glb").is_file() and events[-1]["event"] == "done"
+    obj = bpy.data.objects["Reconstruction"]
+    assert len(obj.data.polygons) > 100 and obj.data.color_attributes.get("albedo") is not None
+
+    assert bpy.ops.sft.relit_preview() == {"FINISHED"}
+    previews = list((run / "preview").glob("*.png"))
+    assert previews and "relit preview" in _reports(capfd)
+    side = np.asarray(Image.open(next(p for p in previews if not p.stem.endswith("_render"))).convert("RGB"))
+    assert side[:, : side.shape[1] // 2].std() > 3, "empty relit render"
+
+    glb = tmp_path / "journey.glb"
+    assert bpy.ops.sft.export_gltf(filepath=str(glb)) == {"FINISHED"}
+    assert "exported" in _reports(capfd)
+    gltf = _glb_json(glb)
+    assert "KHR_materials_specular" in gltf.get("extensionsUsed", []), "the export dropped the specular lobe"
+    material = gltf["materials"][0]
+    assert material["pbrMetallicRoughness"]["baseColorTexture"] is not None
+    assert material["extensions"]["KHR_materials_specular"]["specularColorFactor"][0] > 0
