@@ -120,6 +120,10 @@ def add_arguments(parser) -> None:
     parser.add_argument("--ref-sppi", type=int, default=64, help="default: %(default)s")
     parser.add_argument("--ref-rounds", type=int, default=3,
                         help="fresh octree builds averaged for the indirect reference (default: %(default)s)")
+    parser.add_argument("--smoothing", type=float, default=2.0,
+                        help="Large Steps lambda of the optimiser's direction (default: %(default)s, the soft system)")
+    parser.add_argument("--clip", type=float, default=95.0,
+                        help="per-vertex gradient cap percentile of the optimiser's direction (default: %(default)s)")
     parser.add_argument("--configs", default=DEFAULT_CONFIGS, help="';'-separated (default: %(default)s)")
     parser.add_argument("--out", type=Path, help="write the results as JSON here")
 
@@ -180,27 +184,27 @@ class _Bench:
         obj._set_vertices(v)
         params = obj.renderer.params
         detail = integ.proj_detail
-        built0, build_s0 = detail.builds, detail.build_seconds
-        fwd = bwd = 0.0
+        built0, build0 = detail.builds, (detail.build_seconds, detail.build_cpu_seconds)
+        fwd = bwd = np.zeros(2)  # (wall, cpu) seconds
         for k, view in enumerate(view_ids):
             if k:
                 obj.renderer.object.recompute_vertex_normals()
             obj.renderer._set_lights(view)
-            t0 = time.perf_counter()
+            t0 = np.array([time.perf_counter(), time.process_time()])
             img = mi.render(obj.renderer.scene, params, sensor=obj.renderer.sensors[view], seed=seed + k, spp=0,
                             integrator=integ)
             loss = dr.mean(dr.square(obj._tone(img) - obj.targets[view]), axis=None).array / len(view_ids)
             dr.eval(loss)
             dr.sync_thread()
-            t1 = time.perf_counter()
+            t1 = np.array([time.perf_counter(), time.process_time()])
             dr.backward(loss)
             dr.eval(dr.grad(v))
             dr.sync_thread()
-            fwd, bwd = fwd + t1 - t0, bwd + time.perf_counter() - t1
+            fwd, bwd = fwd + t1 - t0, bwd + np.array([time.perf_counter(), time.process_time()]) - t1
         grad = np.array(dr.grad(v), np.float64).reshape(-1, 3)
         dr.disable_grad(v)
-        return {"forward": fwd, "backward": bwd, "guiding": detail.build_seconds - build_s0,
-                "builds": detail.builds - built0, "grad": grad}
+        guide = np.array([detail.build_seconds - build0[0], detail.build_cpu_seconds - build0[1]])
+        return {"forward": fwd, "backward": bwd, "guiding": guide, "builds": detail.builds - built0, "grad": grad}
 
     def shadow_part(self, integ, obj, vertices, view_ids, grads_in, seed: int) -> np.ndarray:
         """The indirect part alone, backpropagated from the reference's adjoint with the guiding
@@ -249,23 +253,29 @@ class _Bench:
 
 
 def _summarise(spec: str, rows: list[dict], base_grads: dict, ref: dict, every: int, base_row: dict | None,
-               shadows: bool) -> dict:  # noqa: C901
+               shadows: bool, process=None) -> dict:  # noqa: C901
     """Means over a configuration's steps; with ``every`` > 1 the cost and full-gradient
     agreement are those of one step with shadow terms and ``every - 1`` without."""
-    mean = lambda key: float(np.mean([r[key] for r in rows]))  # noqa: E731
+    mean = lambda key: np.mean([r[key] for r in rows], 0)  # noqa: E731  (wall, cpu)
     fwd, bwd, guide = mean("forward"), mean("backward"), mean("guiding")
     full = [agreement(r["grad"], ref["full"]) for r in rows]
     if every > 1 and base_row is not None:
-        fwd = (fwd + (every - 1) * base_row["forward"]) / every
-        bwd = (bwd + (every - 1) * base_row["backward"]) / every
+        fwd = (fwd + (every - 1) * base_row["times"][0]) / every
+        bwd = (bwd + (every - 1) * base_row["times"][1]) / every
         guide /= every
         base = [agreement(base_grads[s], ref["full"]) for s in range(len(rows))]
         full = [((c[0] + (every - 1) * b[0]) / every, (c[1] + (every - 1) * b[1]) / every) for c, b in zip(full, base)]
-    row = {"config": spec, "forward": fwd, "backward": bwd, "guiding": guide, "step": fwd + bwd,
+    row = {"config": spec, "forward": fwd[1], "backward": bwd[1], "guiding": guide[1], "step": fwd[1] + bwd[1],
+           "wall": {"forward": fwd[0], "backward": bwd[0], "guiding": guide[0], "step": fwd[0] + bwd[0]},
            "builds": int(sum(r["builds"] for r in rows)),
            "cos": float(np.mean([c[0] for c in full])), "norm": float(np.mean([c[1] for c in full])),
            "shadow_cos": 0.0, "shadow_norm": 0.0, "shadow_error": 1.0, "shadow_mean_cos": 0.0}
+    if process is not None:
+        row["opt_cos"] = row["opt_cos_min"] = row["opt_mean_cos"] = agreement(process(ref["base"]),
+                                                                              process(ref["full"]))[0]
     row["ratio"] = row["step"] / base_row["step"] if base_row else 1.0
+    row["wall"]["ratio"] = row["wall"]["step"] / base_row["wall"]["step"] if base_row else 1.0
+    row["times"] = (fwd, bwd)
     row["work_variance"] = 0.0
     if shadows:
         parts = [r["shadow"] for r in rows]
@@ -275,6 +285,15 @@ def _summarise(spec: str, rows: list[dict], base_grads: dict, ref: dict, every: 
         err = [(e + (every - 1)) / every for e in err] if every > 1 else err
         row.update(shadow_cos=float(np.mean([c[0] for c in sh])), shadow_norm=float(np.mean([c[1] for c in sh])),
                    shadow_error=float(np.mean(err)), shadow_mean_cos=agreement(np.mean(parts, 0), target)[0])
+        row["shadow_errors"] = err
+        if process is not None:  # what the optimiser steps along: the clean rest plus this shadow part
+            target_p = process(ref["full"])
+            opt = [agreement(process(ref["base"] + p), target_p)[0] for p in parts]
+            if every > 1:
+                opt = [(o + (every - 1) * agreement(process(ref["base"]), target_p)[0]) / every for o in opt]
+            mean_part = np.mean(parts, 0) if every == 1 else np.mean(parts, 0) / every
+            row.update(opt_cos=float(np.mean(opt)), opt_cos_min=float(np.min(opt)),
+                       opt_mean_cos=agreement(process(ref["base"] + mean_part), target_p)[0])
         if base_row is not None:  # the shadow term's error times its extra seconds: lower is better
             row["work_variance"] = row["shadow_error"] * max(row["step"] - base_row["step"], 0.0)
     return row
@@ -307,12 +326,19 @@ def run(args) -> int:
     print(f"reference: {time.perf_counter() - t0:.0f} s; the indirect (shadow) part is {100 * ref_share:.1f} % of "
           f"the reference gradient's norm", flush=True)
 
+    from ..optimize.steps import LaplacianSystem, clip_outliers
+
+    system = LaplacianSystem(bench.estimate.faces, len(bench.estimate.vertices), a.smoothing)
+
+    def process(g: np.ndarray) -> np.ndarray:  # the optimiser's per-vertex cap, then its smoothing
+        return system.solve(clip_outliers(g, a.clip))
+
     configs = [c.strip() for c in a.configs.split(";") if c.strip()]
     if "sppi=0" not in configs:
         configs.insert(0, "sppi=0")
     results, base_grads = [], {}
-    header = (f"{'configuration':<44}{'fwd s':>7}{'bwd s':>7}{'guide s':>8}{'step s':>8}{'x no-sh':>8}"
-              f"{'cos':>7}{'|g|/ref':>8}{'sh cos':>8}{'sh |g|':>8}{'sh err':>8}{'sh mean':>8}{'err x s':>8}")
+    header = (f"{'configuration':<44}{'fwd s':>7}{'bwd s':>7}{'guide s':>8}{'step s':>8}{'x no-sh':>8}{'wall x':>7}"
+              f"{'cos':>7}{'|g|/ref':>8}{'sh cos':>8}{'sh |g|':>8}{'sh err':>8}{'sh mean':>8}{'err x s':>8}{'opt cos':>8}{'min':>7}{'mean':>7}")
     print(header, flush=True)
     for spec in configs:
         config = parse_config(spec)
@@ -339,22 +365,30 @@ def run(args) -> int:
                 base_grads[s] = r["grad"]
             rows.append(r)
         row = _summarise(spec, rows, base_grads, ref, every, results[0] if results else None,
-                         config.get("sppi", 0) > 0)
+                         config.get("sppi", 0) > 0, process)
         results.append(row)
         print(f"{spec:<44}{row['forward']:>7.2f}{row['backward']:>7.2f}{row['guiding']:>8.2f}{row['step']:>8.2f}"
-              f"{row['ratio']:>7.1f}x{row['cos']:>7.3f}{row['norm']:>8.3f}{row['shadow_cos']:>8.3f}"
-              f"{row['shadow_norm']:>8.3f}{row['shadow_error']:>8.2f}{row['shadow_mean_cos']:>8.3f}{row['work_variance']:>8.2f}",
+              f"{row['ratio']:>7.1f}x{row['wall']['ratio']:>6.1f}x{row['cos']:>7.3f}{row['norm']:>8.3f}{row['shadow_cos']:>8.3f}"
+              f"{row['shadow_norm']:>8.3f}{row['shadow_error']:>8.2f}{row['shadow_mean_cos']:>8.3f}{row['work_variance']:>8.2f}"
+              f"{row['opt_cos']:>8.4f}{row['opt_cos_min']:>7.3f}{row['opt_mean_cos']:>7.3f}",
               flush=True)
-    print(f"per step ({len(views)} views, means of {a.steps} steps): fwd = primal render + loss; bwd = backward "
-          f"pass, guide = its guiding construction; x no-sh = step time over sppi=0's. cos, |g|/ref: the step's "
+    print(f"per step ({len(views)} views, means of {a.steps} steps), CPU seconds of all the process's threads "
+          f"(steadier than wall-clock time on a shared machine): fwd = primal render + loss; bwd = backward "
+          f"pass, guide = its guiding construction; x no-sh = step time over sppi=0's, wall x = the same in "
+          f"wall-clock time. cos, |g|/ref: the step's "
           f"vertex gradient against the reference; sh: the shadow part alone, with the step's seed and guiding "
           f"but the reference's adjoint (dLoss/dImage of a {a.ref_spp}-spp render): cos, norm ratio, relative squared error |g - ref|^2 / |ref|^2 (1 = no "
           f"shadow term), the cosine of the mean over the steps, and err x s = the squared error times the "
-          f"step's extra seconds over sppi=0 (an unbiased term's cost of accuracy: lower is better). {time.perf_counter() - t_start:.0f} s in all",
+          f"step's extra seconds over sppi=0 (an unbiased term's cost of accuracy: lower is better); opt cos "
+          f"(mean, min over the steps): the optimiser's direction (gradient capped at its {a.clip:g}th percentile, "
+          f"smoothed with lambda {a.smoothing:g}) of the reference's shadow-free part plus this shadow part, "
+          f"against that of the reference (sppi=0: the shadow-free part alone); mean: the same with the mean of the "
+          f"steps' shadow parts (what averaging over steps leaves: the bias). {time.perf_counter() - t_start:.0f} s in all",
           flush=True)
     if a.out:
         a.out.parent.mkdir(parents=True, exist_ok=True)
         a.out.write_text(json.dumps({"args": {k: str(v) for k, v in vars(a).items()},
                                      "self_shadowing": bench.self_shadowing, "faces": bench.truth_faces,
-                                     "reference_indirect_share": ref_share, "rows": results}, indent=2))
+                                     "reference_indirect_share": ref_share, "rows": results}, indent=2,
+                                    default=lambda o: o.tolist() if hasattr(o, "tolist") else str(o)))
     return 0

@@ -61,6 +61,7 @@ class ReusedGuiding(mi.ad.ProjectiveDetail):
         self.hold = False  # cache even when every pass rebuilds (a benchmark reads the last build)
         self.builds = 0
         self.build_seconds = 0.0  # wall time of the builds (each one ends in a sync)
+        self.build_cpu_seconds = 0.0  # their CPU time, all threads of the process
 
     def _stale(self, entry: dict | None, key: tuple, positions: list[np.ndarray]) -> bool:
         if entry is None or entry["uses"] >= self.reuse or entry["key"] != key:
@@ -73,20 +74,22 @@ class ReusedGuiding(mi.ad.ProjectiveDetail):
 
     def init_indirect_silhouette(self, scene, sensor, seed):
         if self.reuse == 1 and self.move <= 0 and not self.hold:
-            start = time.perf_counter()
+            start, cpu = time.perf_counter(), time.process_time()
             super().init_indirect_silhouette(scene, sensor, seed)
             dr.sync_thread()
             self.builds += 1
             self.build_seconds += time.perf_counter() - start
+            self.build_cpu_seconds += time.process_time() - cpu
             return
         key, positions = _mesh_state(scene)
         entry = self.cache.get(id(sensor))
         if self._stale(entry, key, positions):
-            start = time.perf_counter()
+            start, cpu = time.perf_counter(), time.process_time()
             super().init_indirect_silhouette(scene, sensor, seed)
             dr.sync_thread()
             self.builds += 1
             self.build_seconds += time.perf_counter() - start
+            self.build_cpu_seconds += time.process_time() - cpu
             # the sensor is kept so its id is not reused while the entry lives
             entry = {"distr": self.guiding_distr, "uses": 0, "key": key, "sensor": sensor,
                      "positions": positions if self.move > 0 else [],
