@@ -34,7 +34,7 @@ def expect_error(op, *words, **props):
 
 def test_import_video_every_nth_skips_blurred(context, video, tmp_path):
     capture = tmp_path / "cap"
-    assert bpy.ops.sft.import_video(filepath=str(video), capture_dir=str(capture), every_nth=3,
+    assert bpy.ops.sft.import_video(filepath=str(video), capture_dir=str(capture), every_nth=3, target_count=0,
                                     blur_threshold=0.5) == {"FINISHED"}
     manifest = json.loads((capture / "frames.json").read_text())
     assert [f["source_frame"] for f in manifest["frames"]] == [0, 9]  # 3 and 6 are blurred
@@ -80,7 +80,7 @@ def _masks(folder, count, h=48, w=64, empty=False):
 
 def test_import_masks_per_video_frame_and_per_frame(context, video, tmp_path):
     capture = tmp_path / "cap"
-    bpy.ops.sft.import_video(filepath=str(video), capture_dir=str(capture), every_nth=4, blur_threshold=0)
+    bpy.ops.sft.import_video(filepath=str(video), capture_dir=str(capture), every_nth=4, target_count=0, blur_threshold=0)
     # one mask per video frame: picked by each frame's source (0, 4, 8)
     masks = _masks(tmp_path / "all", 12)
     assert bpy.ops.sft.import_masks(filepath=str(masks / "mask_0.png")) == {"FINISHED"}
@@ -107,7 +107,7 @@ def test_import_masks_per_video_frame_and_per_frame(context, video, tmp_path):
 
 def test_import_masks_from_a_mask_video(context, video, tmp_path):
     capture = tmp_path / "cap"
-    bpy.ops.sft.import_video(filepath=str(video), capture_dir=str(capture), every_nth=5, blur_threshold=0)
+    bpy.ops.sft.import_video(filepath=str(video), capture_dir=str(capture), every_nth=5, target_count=0, blur_threshold=0)
     masks = []
     for i in range(12):  # one mask per video frame: a bar whose top row is the frame number
         m = np.zeros((48, 64, 3), np.uint8)
@@ -121,9 +121,9 @@ def test_import_masks_from_a_mask_video(context, video, tmp_path):
 
 
 def test_import_masks_bad_input(context, video, tmp_path):
-    expect_error(bpy.ops.sft.import_masks, "no capture folder", filepath=str(tmp_path / "x.png"))
+    expect_error(bpy.ops.sft.import_masks, "poll() import a video or cameras first", filepath=str(tmp_path / "x.png"))
     capture = tmp_path / "cap"
-    bpy.ops.sft.import_video(filepath=str(video), capture_dir=str(capture), every_nth=4, blur_threshold=0)
+    bpy.ops.sft.import_video(filepath=str(video), capture_dir=str(capture), every_nth=4, target_count=0, blur_threshold=0)
     expect_error(bpy.ops.sft.import_masks, "5 masks match neither the 3 frames nor the 12 video frames",
                  filepath=str(_masks(tmp_path / "five", 5) / "mask_0.png"))
     small = tmp_path / "small"

@@ -70,8 +70,15 @@ def test_panels_draw_in_an_empty_scene(context):
     assert ("operator", "sft.solve_cameras", True) in log["SFT_PT_cameras"]
     assert ("operator", "sft.reconstruct", True) in log["SFT_PT_reconstruct"]
     labels = [entry[1] for entry in log["SFT_PT_reconstruct"] if entry[0] == "label"]
-    assert labels == [f"{title}: {expected_cost(key)}" for key, title in
-                      (("draft", "Draft"), ("balanced", "Balanced"), ("final", "Final"))]
+    assert labels[:3] == [f"{title}: {expected_cost(key)}" for key, title in
+                          (("draft", "Draft"), ("balanced", "Balanced"), ("final", "Final"))]
+    assert "Times measured on a point-lit object; HDR-lit captures take longer" in labels
+    assert "No lighting: Import Environment Map" in labels
+    props = [entry[1] for entry in log["SFT_PT_reconstruct"] if entry[0] == "prop"]
+    assert props == ["preset", "time_budget", "material", "init", "effects"], "the method's settings, no free text"
+    assert [e[1] for e in draw("SFT_PT_reconstruct_advanced", context) if e[0] == "prop"] == ["extra_args"]
+    context.scene.sft.init = "OBJECT"
+    assert ("prop", "init_object") in draw("SFT_PT_reconstruct", context)
     assert ("operator", "sft.relit_preview", True) in log["SFT_PT_preview"]
     assert not any(e[:2] == ("operator", "sft.reconstruct_resume") for e in log["SFT_PT_reconstruct"])
 

@@ -100,25 +100,28 @@ def test_import_cameras_other_layouts_through_backend(context, env_capture, tmp_
         np.testing.assert_allclose(_matrix(obj), frame["camera"]["camera_to_world"], atol=1e-5)
 
 
-def test_solve_cameras_needs_frames_and_backend(context, tmp_path):
-    expect_error(bpy.ops.sft.solve_cameras, "no capture folder")
+def test_solve_cameras_is_greyed_out_until_frames_and_masks_exist(context, tmp_path):
+    """poll() says what is missing (the button's tooltip); start() checks the files."""
+    expect_error(bpy.ops.sft.solve_cameras, "poll()", "import a video first (Import Video)")
     context.scene.sft.capture_dir = str(tmp_path)
-    expect_error(bpy.ops.sft.solve_cameras, "no imported frames", "Import Video")
-    if not interpreter.has_command("capture-from-video"):
-        (tmp_path / "frames.json").write_text(json.dumps({"video": "v.mp4", "frames": [{"name": "0000"}]}))
-        expect_error(bpy.ops.sft.solve_cameras, "no 'capture-from-video' command", "Import Cameras")
+    expect_error(bpy.ops.sft.solve_cameras, "import a video first (Import Video)")
+    (tmp_path / "frames.json").write_text(json.dumps({"video": "v.mp4", "frames": [{"name": "0000"}]}))
+    expect_error(bpy.ops.sft.solve_cameras, "import the object masks first (Import Masks)")
+    (tmp_path / "masks").mkdir()
+    expect_error(bpy.ops.sft.solve_cameras, "images: no frames", "import the video again")
 
 
 def test_reconstruct_refuses_bad_input(context, tmp_path):
-    expect_error(bpy.ops.sft.reconstruct, "no capture folder")
+    expect_error(bpy.ops.sft.reconstruct, "poll()", "import a video and solve its cameras, or import cameras")
+    context.scene.sft.capture_dir = str(tmp_path)
+    expect_error(bpy.ops.sft.reconstruct, "the capture has no cameras yet: Solve Cameras or Import Cameras")
+    (tmp_path / "capture.json").write_text("{}")
     expect_error(bpy.ops.sft.reconstruct, "capture folder not found", capture_dir=str(tmp_path / "none"))
-    if not interpreter.has_command("reconstruct"):
-        expect_error(bpy.ops.sft.reconstruct, "no 'reconstruct' command", capture_dir=str(tmp_path))
-    else:
-        (tmp_path / "run").mkdir()
-        (tmp_path / "run" / "old.txt").write_text("x")
-        expect_error(bpy.ops.sft.reconstruct, "run folder is not empty", capture_dir=str(tmp_path),
-                     run_dir=str(tmp_path / "run"))
+    (tmp_path / "run").mkdir()
+    (tmp_path / "run" / "old.txt").write_text("x")
+    expect_error(bpy.ops.sft.reconstruct, "run folder is not empty", run_dir=str(tmp_path / "run"))
+    context.scene.sft.init = "OBJECT"
+    expect_error(bpy.ops.sft.reconstruct, "no mesh object to start from")
 
 
 # --- streaming -------------------------------------------------------------------------
@@ -287,9 +290,9 @@ def test_cycles_device_choice(context, addon):
 
 
 def test_relit_preview_bad_input(context, addon, env_capture, tmp_path):
-    expect_error(bpy.ops.sft.relit_preview, "no capture folder")
+    expect_error(bpy.ops.sft.relit_preview, "poll()", "no reconstruction yet: run Reconstruct first")
     bpy.ops.sft.import_cameras(filepath=str(env_capture))
-    expect_error(bpy.ops.sft.relit_preview, "no mesh object 'Reconstruction'", "Reconstruct")
+    expect_error(bpy.ops.sft.relit_preview, "no reconstruction yet: run Reconstruct first")
     addon.jobs.show_snapshot(context, env_capture / "gt" / "mesh.ply")
     context.scene.sft.preview_frame = 9
     expect_error(bpy.ops.sft.relit_preview, "frame 9 does not exist (4 frames)")
@@ -334,7 +337,7 @@ def test_export_gltf_with_baked_textures(context, addon, lights_capture, tmp_pat
 
 
 def test_export_gltf_vertex_colours_and_bad_input(context, addon, lights_capture, tmp_path):
-    expect_error(bpy.ops.sft.export_gltf, "no mesh object", filepath=str(tmp_path / "x.glb"))
+    expect_error(bpy.ops.sft.export_gltf, "poll()", "no reconstruction yet", filepath=str(tmp_path / "x.glb"))
     _show_ground_truth(context, addon, lights_capture)
     out = tmp_path / "vc.glb"
     assert bpy.ops.sft.export_gltf(filepath=str(out), bake=False) == {"FINISHED"}
