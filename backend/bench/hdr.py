@@ -17,7 +17,7 @@ computed again with the step's seed and guiding structure but the reference's ad
 the primal render's noise, shared by every configuration, stays out of the comparison).
 
 A configuration is a comma list of integrator properties, ``;`` between configurations:
-``sppi``, ``guiding`` (none/grid/octree), ``guiding_rounds``, ``guiding_reuse`` (steps a
+``sppi``, ``guiding`` (none/grid/octree; Mitsuba's octree when not given), ``guiding_rounds``, ``guiding_reuse`` (steps a
 per-view structure is reused; the bench measures it built ``reuse - 1`` steps of
 ``--step-move`` earlier, the oldest it gets), ``guiding_seed_spp``, ``guiding_leaf_samples``,
 ``every`` (shadow terms only on every k-th step; the other steps run without them)."""
@@ -171,6 +171,7 @@ class _Bench:
                                                           "guiding_move")}
         d = settings.integrator_dict()
         d["type"] = self.integrator
+        d["guiding"] = "octree"  # a configuration without 'guiding' is Mitsuba's default
         if sppc == 0:
             d["sppc"] = 0  # integrator_dict turns 0 into spp
         d.update(props)

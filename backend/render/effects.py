@@ -13,8 +13,10 @@ relative threshold:
   Only for environment (non-delta) lighting: the projective integrators sample no shadow
   boundaries of point lights, so under point lights alone the term is zero at direct light
   (bit-identical gradients) and, with indirect bounces, small for its cost (the dragon, 3.3 %
-  self-shadowed: 3 % of the geometry gradient at about 35x the CPU time of a step). Under an
-  environment the threshold (5 %) weighs the same cost: a 1 % self-shadowed blob gets 1.9 %.
+  self-shadowed: 3 % of the geometry gradient at about 35x the CPU time of a step, with the
+  octree guiding Mitsuba rebuilds every pass; unguided samples, the default since, cost far
+  less: ``SHADOW_SPPI``). Under an environment the threshold (5 %) weighs the same cost: a 1 %
+  self-shadowed blob gets 1.9 %.
 - **specular lobe**: how much brighter the targets are, relative to diffuse shading, where a
   unit-specular render says highlights would be than in the pixels just around them.
 - **silhouette gradients**: projective integrators only while geometry is optimised.
@@ -33,6 +35,9 @@ from .fields import ConstantField
 from .scene import RenderSettings
 
 EFFECTS = ("indirect", "shadows", "specular", "silhouettes")
+# indirect-visibility samples per pixel with shadow gradients (unguided, RenderSettings.guiding):
+# as accurate as Mitsuba's octree-guided 4 for a fraction of a step's cost
+SHADOW_SPPI = 16
 
 
 @dataclass
@@ -42,7 +47,7 @@ class EffectsConfig:
     max_depth_probe: int = 6
     # self-shadowing share (environment light) above which shadow gradients pay: the term is
     # about as large, relative to the geometry gradient, as the share (blob 1 %: 1.9 %; dragon
-    # 3.3 %: 3 %) and costs 24-35x the CPU time of a step
+    # 3.3 %: 3 %) and cost 24-35x the CPU time of a step with the octree guiding (unguided: far less)
     shadow_threshold: float = 0.05
     # targets over diffuse fit, in highlight regions: diffuse objects measure 0.92-0.99; a wrong
     # diffuse-only decision costs accuracy (the glossy dragon on its carved start measured 1.07:
@@ -63,7 +68,7 @@ class EffectsDecision:
     reasons: dict = field(default_factory=dict)
     forced: dict = field(default_factory=dict)
 
-    def settings(self, base: RenderSettings, geometry: bool, sppi: int = 4) -> RenderSettings:
+    def settings(self, base: RenderSettings, geometry: bool, sppi: int = SHADOW_SPPI) -> RenderSettings:
         """Render settings for a stage: projective only when geometry moves, sppi only with shadows."""
         projective = geometry and self.silhouettes
         if self.max_depth <= 2:
@@ -72,7 +77,8 @@ class EffectsDecision:
             integrator = "prb_projective" if projective else "prb"
         return RenderSettings(spp=base.spp, max_depth=self.max_depth, integrator=integrator,
                               hide_emitters=base.hide_emitters, sppc=base.sppc, sppp=base.sppp,
-                              sppi=sppi if (projective and self.shadows) else 0, rr_depth=base.rr_depth)
+                              sppi=sppi if (projective and self.shadows) else 0, guiding=base.guiding,
+                              rr_depth=base.rr_depth)
 
     def to_json(self) -> dict:
         return asdict(self)

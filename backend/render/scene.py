@@ -38,6 +38,10 @@ class RenderSettings:
     sppc: int = 0  # projective integrators: continuous part uses spp
     sppp: int = 4  # primary-visibility (silhouette) samples per pixel
     sppi: int = 0  # indirect-visibility samples; 0 unless shadows change with the geometry
+    # guiding of the indirect-visibility samples ('none' | 'grid' | 'octree', Mitsuba's default):
+    # Mitsuba rebuilds a grid or octree in every backward pass, per view, for less accuracy per
+    # second than unguided samples (docs/notes/2026-11-24-hdr-shadow-gradients.md)
+    guiding: str = "none"
     rr_depth: int = 100
 
     def integrator_dict(self) -> dict:
@@ -52,6 +56,8 @@ class RenderSettings:
             d["rr_depth"] = self.rr_depth
         if self.integrator.endswith("projective"):
             d.update(sppc=self.sppc or self.spp, sppp=self.sppp, sppi=self.sppi)
+            if self.sppi > 0:
+                d["guiding"] = self.guiding
         return d
 
 
