@@ -103,8 +103,9 @@ def _wrap(deg: float) -> float:
     return (deg + 180.0) % 360.0 - 180.0
 
 
-def score(capture_dir: Path, run_dir: Path | None, orbit: Path) -> dict:
-    """Camera, environment and (with a run) geometry errors of the capture against the truth."""
+def score(capture_dir: Path, run_dir: Path | None, orbit: Path, index_of: dict[str, int] | None = None) -> dict:
+    """Camera, environment and (with a run) geometry errors of the capture against the truth.
+    ``index_of`` maps frame names to video frame indices (default: the name is the index)."""
     import numpy as np
     from scipy.spatial.transform import Rotation
 
@@ -117,7 +118,8 @@ def score(capture_dir: Path, run_dir: Path | None, orbit: Path) -> dict:
     ours, theirs, R_ours, R_theirs = [], [], [], []
     for frame in doc["frames"]:
         c2w = np.array(frame["camera"]["camera_to_world"])
-        index = int(frame["name"])  # capture-from-video names frames by video frame index
+        # capture-from-video names frames by video frame index; the add-on's by its own count
+        index = index_of[frame["name"]] if index_of is not None else int(frame["name"])
         ours.append(c2w[:3, 3])
         theirs.append(true_c2w[index][:3, 3])
         R_ours.append(c2w[:3, :3] / np.linalg.norm(c2w[:3, 0]))

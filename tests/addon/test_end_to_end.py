@@ -171,6 +171,7 @@ def test_backend_bad_input_is_one_line_and_leaves_scene(context, tmp_path):
 
     (tmp_path / "capture.json").write_text('{"format": "shape-from-tracing-capture", "version": 1, "frames": []}')
     context.scene.sft.extra_args = TINY
+    context.scene.sft.capture_dir = str(tmp_path)
     message = expect_error(bpy.ops.sft.reconstruct, "capture.json", "reconstruction failed",
-                           capture_dir=str(tmp_path), run_dir=str(tmp_path / "run"))
+                           run_dir=str(tmp_path / "run"))
     assert "Traceback" not in message and "exited with code" not in message

@@ -1,0 +1,117 @@
+"""Try the add-on as a new user would: build the zip, install it into a fresh Blender user
+folder, press Install Backend, then click through with the panel's defaults and time each step.
+
+    python scripts/journey.py --video orbit.mp4 --masks masks/0000.png --env map.hdr --out DIR
+        [--truth ORBIT_DIR] [--python PY] [--budget MINUTES]
+
+Runs with the bpy module (the venv's python). Steps: Install Backend (skipped with
+``--python``, which names an interpreter that already imports mitsuba), Import Video,
+Import Masks, Import Environment Map, Solve Cameras, Reconstruct, Relit Preview, Export glTF,
+each with the defaults the panel shows (``--budget`` changes the Time Budget only). With
+``--truth`` (a folder written by ``scripts/render_orbit.py``: truth.ply, truth.json) the
+result is scored against the true mesh after a similarity fit (as ``bench realworld``).
+Writes ``DIR/journey.json`` with the seconds of each step and the figures."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def parse_args(argv=None):
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--video", type=Path, required=True)
+    p.add_argument("--masks", type=Path, required=True, help="one file of the mask sequence, or a mask video")
+    p.add_argument("--env", type=Path, required=True, help="the HDR map")
+    p.add_argument("--out", type=Path, required=True, help="folder for the user folder, capture and results")
+    p.add_argument("--truth", type=Path, help="render_orbit.py output folder, to score the result")
+    p.add_argument("--python", help="backend interpreter (default: press Install Backend)")
+    p.add_argument("--budget", type=float, help="Time Budget in minutes (default: the panel's)")
+    return p.parse_args(argv)
+
+
+def main(argv=None) -> int:
+    args = parse_args(argv)
+    out = args.out.resolve()
+    out.mkdir(parents=True, exist_ok=True)
+    os.environ["BLENDER_USER_RESOURCES"] = tempfile.mkdtemp(prefix="user-", dir=out)  # a fresh user folder
+    import bpy  # before anything imports pymeshlab (both ship Embree)
+
+    bpy.context.preferences.use_preferences_save = False
+    steps: dict[str, float] = {}
+
+    def step(name, call):
+        start = time.monotonic()
+        result = call()
+        steps[name] = round(time.monotonic() - start, 1)
+        print(f"[journey] {name}: {result} in {steps[name]:.1f} s", flush=True)
+        if "FINISHED" not in result:
+            raise SystemExit(f"{name} did not finish: {result}")
+
+    scripts = Path(bpy.utils.system_resource("SCRIPTS"))
+    dist = out / "dist"
+    dist.mkdir(exist_ok=True)
+    proc = subprocess.run([sys.executable, str(scripts / "addons_core" / "bl_pkg" / "cli" / "blender_ext.py"), "build",
+                           "--source-dir", str(ROOT), "--output-dir", str(dist), "--valid-tags",
+                           str(scripts / "modules" / "_bpy_internal" / "extensions" / "tags.py")],
+                          capture_output=True, text=True)
+    if proc.returncode != 0:
+        raise SystemExit(proc.stdout + proc.stderr)
+    (zip_path,) = dist.glob("*.zip")
+    prefs = bpy.context.preferences
+    if prefs.extensions.repos.get("journey") is None:
+        prefs.extensions.repos.new(name="journey", module="journey", custom_directory=str(out / "extensions"),
+                                   source="USER")
+    step("install zip", lambda: bpy.ops.extensions.package_install_files(filepath=str(zip_path), repo="journey",
+                                                                         enable_on_install=True))
+    name = "bl_ext.journey.shape_from_tracing"
+    addon_prefs = prefs.addons[name].preferences
+    if args.python:
+        addon_prefs.python = args.python
+    else:
+        step("Install Backend", lambda: bpy.ops.sft.install_backend())
+    bpy.ops.wm.read_homefile(use_empty=True)
+    sft = bpy.context.scene.sft
+    if args.budget is not None:
+        sft.time_budget = args.budget
+    video = out / args.video.name
+    if not video.exists():
+        video.symlink_to(args.video.resolve())
+    step("Import Video", lambda: bpy.ops.sft.import_video(filepath=str(video)))
+    capture = Path(sft.capture_dir)
+    manifest = json.loads((capture / "frames.json").read_text())
+    step("Import Masks", lambda: bpy.ops.sft.import_masks(filepath=str(args.masks.resolve())))
+    step("Import Environment Map", lambda: bpy.ops.sft.import_environment(filepath=str(args.env.resolve())))
+    step("Solve Cameras", lambda: bpy.ops.sft.solve_cameras())
+    step("Reconstruct", lambda: bpy.ops.sft.reconstruct())
+    run = Path(sft.run_dir)
+    step("Relit Preview", lambda: bpy.ops.sft.relit_preview())
+    step("Export glTF", lambda: bpy.ops.sft.export_gltf(filepath=str(out / "journey.glb")))
+    figures = {"steps_s": steps, "total_min": round(sum(steps.values()) / 60, 2),
+               "user_min": round(sum(v for k, v in steps.items() if k not in ("install zip", "Install Backend")) / 60, 2),
+               "frames": len(manifest["frames"]), "run": str(run),
+               "settings": {"quality": sft.preset, "time_budget": sft.time_budget, "material": sft.material,
+                            "init": sft.init, "effects": sft.effects}}
+    if args.truth:
+        sys.path.insert(0, str(ROOT))
+        from backend.bench.realworld import score
+
+        index_of = {f["name"]: int(f["source_frame"]) for f in manifest["frames"]}
+        figures["score"] = score(Path(sft.capture_dir), run, args.truth.resolve(), index_of)
+        g = figures["score"]["geometry"]
+        print(f"[journey] F1@0.01 {g['f1@0.01']:.1f}, Chamfer-L1 {g['chamfer_l1']:.5f}", flush=True)
+    (out / "journey.json").write_text(json.dumps(figures, indent=1))
+    print(json.dumps({k: figures[k] for k in ("steps_s", "total_min", "user_min")}), flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
