@@ -175,3 +175,26 @@ def test_backend_bad_input_is_one_line_and_leaves_scene(context, tmp_path):
     message = expect_error(bpy.ops.sft.reconstruct, "capture.json", "reconstruction failed",
                            run_dir=str(tmp_path / "run"))
     assert "Traceback" not in message and "exited with code" not in message
+
+
+def test_a_blender_object_starts_the_reconstruction(context, tiny_capture, tmp_path, monkeypatch):
+    """Initialisation = Blender Object: the object's evaluated mesh (world coordinates) is the
+    backend's --init; the panel's method settings reach the command line."""
+    monkeypatch.setenv("SFT_RECONSTRUCT_SETTINGS", json.dumps({"iterations": 4, "max_size": 32, "coarse_size": 32,
+                                                               "max_levels": 1, "validation_views": 2}))
+    bpy.ops.mesh.primitive_ico_sphere_add(subdivisions=3, radius=0.4, location=(0.05, 0.0, 0.0))
+    start = context.active_object
+    sft = context.scene.sft
+    sft.capture_dir, sft.init, sft.material, sft.effects, sft.time_budget = (
+        str(tiny_capture), "OBJECT", "CONSTANT", "ALL", 2.0)
+    run = tmp_path / "run"
+    assert bpy.ops.sft.reconstruct(run_dir=str(run)) == {"FINISHED"}
+    argv = json.loads((run / "command.json").read_text())["argv"]
+    init = argv[argv.index("--init") + 1]
+    assert init.endswith(f"{start.name}.ply") and argv[argv.index("--material") + 1] == "constant"
+    assert argv[argv.index("--effects") + 1] == "all" and argv[argv.index("--time-budget") + 1] == "2"
+    mesh = load_mesh(init)
+    assert mesh.n_faces == 2 * len(start.data.polygons) or mesh.n_faces == len(start.data.polygons)
+    assert abs(mesh.vertices[:, 0].mean() - 0.05) < 1e-3, "not in world coordinates"
+    events = [json.loads(line) for line in (run / "events.jsonl").read_text().splitlines()]
+    assert next(e for e in events if e["event"] == "start")["settings"]["init"] == init

@@ -21,6 +21,7 @@ from backend.geometry.mesh import Mesh, save_mesh
 from tests.conftest import run_cli
 
 from .conftest import SCRIPTED_BACKEND, scene_state
+from .media import write_image
 from .test_capture_ops import expect_error
 
 
@@ -356,3 +357,45 @@ def test_opening_another_file_stops_the_job_cleanly(context, addon, tmp_path):
     assert (tmp_path / "run" / "STOP").exists() and job.state.status == "stopping"
     job.process.wait(timeout=30)  # what the drain timer does in the UI
     assert job.process.returncode == 130
+
+
+def test_masks_and_material_labels_onto_imported_cameras(context, lights_capture, tmp_path):
+    """Import Cameras, then Import Masks pairs one mask per frame (name order) and names them
+    in capture.json; the backend reads them back (masks, and labels as material masks)."""
+    import shutil
+
+    from backend.capture.format import load_capture
+
+    capture = tmp_path / "capture"
+    shutil.copytree(lights_capture, capture)
+    doc = json.loads((capture / "capture.json").read_text())
+    for frame in doc["frames"]:  # an imported layout without masks
+        frame.pop("mask", None)
+    (capture / "capture.json").write_text(json.dumps(doc))
+    shutil.rmtree(capture / "masks", ignore_errors=True)
+    assert bpy.ops.sft.import_cameras(filepath=str(capture)) == {"FINISHED"}
+    masks = tmp_path / "masks"
+    masks.mkdir()
+    for i in range(4):
+        m = np.zeros((64, 64, 3), np.float32)
+        m[10:50, 12 + i:52] = 1.0
+        write_image(masks / f"m{i}.png", m)
+    expect_error(bpy.ops.sft.import_masks, "3 masks for 4 frames", filepath=str(_three(tmp_path)))
+    assert bpy.ops.sft.import_masks(filepath=str(masks / "m0.png")) == {"FINISHED"}
+    assert bpy.ops.sft.import_masks(filepath=str(masks / "m0.png"), material=2) == {"FINISHED"}
+    loaded = load_capture(capture)
+    assert all(f.mask is not None and f.material_mask is not None for f in loaded.frames)
+    from backend.capture.images import read_mask, read_rgba
+
+    first = loaded.frames[0]
+    assert read_mask(first.mask)[30, 30] == 1.0 and read_mask(first.mask)[2, 2] == 0.0
+    labels = np.rint(read_rgba(first.material_mask)[0][..., 0] * 255)
+    assert labels[30, 30] == 2 and labels[2, 2] == 0
+
+
+def _three(tmp_path):
+    folder = tmp_path / "three"
+    folder.mkdir()
+    for i in range(3):
+        write_image(folder / f"{i}.png", np.ones((64, 64, 3), np.float32))
+    return folder / "0.png"
