@@ -30,7 +30,7 @@ from .appearance import Appearance
 from .config import ReconstructConfig
 from .material import ConstantMaterial
 from .objective import Objective, seed_for
-from .progress import LockedEmitter, Progress
+from .progress import StopOnProgress, LockedEmitter, Progress
 from .run_folder import RunFolder, StopRequested
 from .schedule import Plateau, keeps_improving, level_size
 from .steps import Adam, VertexOptimizer, clip_outliers, finite
@@ -42,6 +42,7 @@ class Reconstruction:
     def __init__(self, capture: Capture, folder: RunFolder, config: ReconstructConfig, emit,
                  material=None, resume: bool = False):
         self.capture, self.folder, self.config = capture, folder, config
+        emit = StopOnProgress(emit, folder.check_stop, lambda: self.phase != "done")
         self.emit = LockedEmitter(emit)
         self.material = material
         self.resume = resume

@@ -22,6 +22,31 @@ class LockedEmitter:
         return self.inner.start
 
 
+class StopOnProgress:
+    """Checks for a stop request whenever the main thread reports progress, so a cancel also
+    ends material stages and effect checks between two of their steps, not only geometry
+    steps. Raises once, and only while ``active()`` (not while the outputs are written)."""
+
+    def __init__(self, emit, check_stop, active):
+        self.inner, self.check_stop, self.active = emit, check_stop, active
+        self.raised = False
+
+    def __call__(self, event: str, **fields) -> dict:
+        out = self.inner(event, **fields)
+        if (event == "progress" and not self.raised and self.active()
+                and threading.current_thread() is threading.main_thread()):
+            try:
+                self.check_stop()
+            except BaseException:
+                self.raised = True
+                raise
+        return out
+
+    @property
+    def start(self) -> float:
+        return self.inner.start
+
+
 class Progress:
     """Holds the latest progress fields; emits them when updated (at most ``min_gap`` apart)
     and from a heartbeat thread whenever ``interval`` passes without an event."""

@@ -401,3 +401,24 @@ def test_a_capture_with_no_light_is_refused_and_env_lights_it(capture, tmp_path)
     assert proc.returncode == 0, proc.stderr[-2000:]
     lights = next(e for e in events(run) if e["event"] == "effects")
     assert lights["enabled"]["emitters"] == ["environment"], lights
+
+
+def test_cancel_stops_a_material_stage_within_seconds(capture, tmp_path):
+    """RUN/STOP is honoured between two steps of a material stage, not only of geometry."""
+    run = tmp_path / "run"
+    proc = start(capture, run, "--material", "staged", "--iterations", 400)
+    for line in proc.stdout:
+        event = json.loads(line)
+        if event["event"] == "progress" and str(event.get("stage", "")).startswith("material:"):
+            break
+    else:
+        raise AssertionError(f"no material stage: {proc.wait()} {proc.stderr.read()[-2000:]}")
+    asked = time.monotonic()
+    (run / "STOP").touch()
+    rest = proc.stdout.read()
+    code = proc.wait(timeout=60)
+    seconds = time.monotonic() - asked
+    assert code == 130, proc.stderr.read()[-2000:]
+    assert seconds < 2.5, f"cancel took {seconds:.1f} s"
+    last = json.loads(rest.strip().splitlines()[-1])
+    assert last["event"] == "cancelled"
