@@ -20,6 +20,7 @@ import numpy as np
 from ..capture.model import Capture
 from ..geometry.init import initial_mesh
 from ..geometry.mesh import Mesh, load_mesh, save_mesh
+from ..geometry.poisson import SurfaceReconstructionError
 from ..geometry.remesh import poisson_from_samples, sample_surface
 from ..geometry.simplify import FaceBudget
 from ..geometry.subdivide import midpoint
@@ -448,11 +449,14 @@ class Reconstruction:
             remeshed = None
             if c.remesh == "always" or share > c.remesh_threshold:
                 target = self.budget.next_target(old.n_faces)
-                remeshed = poisson_from_samples(samples, old, target, cameras=cameras, masks=masks)
-                report = inspect(remeshed)
-                if not report.closed_manifold:  # too few consistent samples (a tangled mesh): Poisson leaves holes
-                    self.emit("warning", message="re-meshing not applied: the rebuilt surface is not a closed manifold "
-                              f"({', '.join(report.issues)})")
+                try:
+                    remeshed = poisson_from_samples(samples, old, target, cameras=cameras, masks=masks)
+                    report = inspect(remeshed)
+                    if not report.closed_manifold:  # too few consistent samples (a tangled mesh): Poisson leaves holes
+                        raise SurfaceReconstructionError("the rebuilt surface is not a closed manifold "
+                                                         f"({', '.join(report.issues)})")
+                except SurfaceReconstructionError as err:  # the current surface stays; the level goes on
+                    self.emit("warning", message=f"re-meshing not applied: {err}")
                     remeshed = None
                 else:
                     self.material.on_remesh(remeshed)

@@ -72,3 +72,23 @@ def test_reconstruction_changes_genus(torus_capture, tmp_path):
     assert report["levels"][0]["remesh"]["applied"]
     result = load_mesh(run / "result.ply")
     assert genus(result) == 1 and report["result"]["genus"] == 1
+
+
+def test_a_remesh_with_too_few_samples_keeps_the_surface(torus_capture, tmp_path):
+    """A start too small to cover a pixel in most views, in the torus's hole (outside every
+    mask), leaves fewer than 16 consistent ray-cast samples: the re-mesh is skipped with a
+    warning and the run goes on with the previous surface."""
+    small = icosphere(3)
+    small.vertices *= 0.03
+    save_mesh(tmp_path / "around.ply", small)
+    run = tmp_path / "run"
+    proc = run_cli("reconstruct", torus_capture, "--out", run, "--init", tmp_path / "around.ply", "--remesh", "always",
+                   "--max-size", 24, "--coarse-size", 24, "--initial-faces", 600, "--max-levels", 2,
+                   "--level-iterations", 3, "--material", "known:0.6,0.6,0.6:0.25:0.35", "--effects", "specular",
+                   timeout=300)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    events = [json.loads(line) for line in (run / "events.jsonl").read_text().splitlines()]
+    warnings = [e["message"] for e in events if e["event"] == "warning"]
+    assert any("re-meshing not applied: only" in w and "consistent surface samples" in w for w in warnings), warnings
+    report = json.loads((run / "report.json").read_text())
+    assert report["levels"][0]["remesh"]["applied"] is False and len(report["levels"]) == 2
