@@ -185,7 +185,7 @@ def vote_face_labels(mesh: Mesh, cameras: list[Camera], label_images: list[np.nd
     lut[ids] = np.arange(len(ids))
     counts = np.zeros((mesh.n_faces, len(ids)), np.int64)
     for cam, li in zip(cameras, label_images):
-        uv, seen = visible_centroids(mesh, cam)
+        uv, seen = visible_centroids(mesh, _at_size(cam, li.shape[1], li.shape[0]))
         f = np.flatnonzero(seen)
         lab = li[uv[f, 1].astype(np.int64), uv[f, 0].astype(np.int64)]
         keep = lab > 0
@@ -196,6 +196,16 @@ def vote_face_labels(mesh: Mesh, cameras: list[Camera], label_images: list[np.nd
     disagreement = 1.0 - counts.max(1).sum() / votes if votes else 0.0
     labels = _fill_unseen(mesh, labels, seen)
     return FaceLabels(labels, [int(i) for i in ids], float(disagreement), votes, int((~seen).sum()))
+
+
+def _at_size(camera: Camera, width: int, height: int) -> Camera:
+    """``camera`` for an image of ``width`` x ``height`` pixels (the label images keep the
+    capture's size while the optimiser's cameras may be scaled down)."""
+    if (camera.width, camera.height) == (width, height):
+        return camera
+    sx, sy = width / camera.width, height / camera.height
+    return Camera(width, height, camera.fx * sx, camera.fy * sy, camera.cx * sx, camera.cy * sy,
+                  camera.camera_to_world.copy(), dict(camera.distortion))
 
 
 def _fill_unseen(mesh: Mesh, labels: np.ndarray, seen: np.ndarray) -> np.ndarray:

@@ -147,6 +147,19 @@ def test_majority_vote_recovers_face_labels_and_reports_disagreement():
     assert noisy.votes == clean.votes and noisy.unseen_faces == clean.unseen_faces < 0.05 * mesh.n_faces
 
 
+def test_votes_read_label_images_larger_than_the_cameras():
+    """The optimiser hands cameras scaled to its coarse size; the label images keep the
+    capture's size: each camera is brought to its label image's size before indexing."""
+    mesh = procedural.blob(3)
+    centroids = mesh.vertices[mesh.faces].mean(1)
+    truth = np.where(centroids[:, 0] > 0.0, 7, 3)
+    full = layout.orbit_cameras(layout.fibonacci_sphere(12), np.zeros(3), 0.6, 64)
+    images = [pixel_labels(mesh, truth, c) for c in full]
+    coarse = [c.scaled(0.25) for c in full]
+    votes = L.vote_face_labels(mesh, coarse, images)
+    assert np.mean(np.array(votes.material_ids)[votes.labels] == truth) > 0.95
+
+
 def test_clustering_separates_two_colours():
     rng = np.random.default_rng(0)
     obj = disc()
