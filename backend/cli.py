@@ -20,7 +20,7 @@ COMMANDS = {
     "reconstruct": "Refine a mesh and material until path-traced renders match the capture.",
     "evaluate": "Compare a reconstruction with ground truth: Chamfer, F1, PSNR/SSIM, albedo RMSE.",
     "capture-from-video": "Turn a phone video, masks and an HDR map into a capture (frames, SfM, lighting).",
-    "bench": "Benchmarks: geometry, material, sweep, calibrate, stability, effects, realworld, sfm.",
+    "bench": "Benchmarks: geometry, material, sweep, calibrate, stability, effects, hdr, realworld, sfm.",
     "check": "Report whether this interpreter can run the backend (for the Blender add-on).",
     "demo": "Synthesise the built-in procedural object, reconstruct it and print the metrics.",
 }
