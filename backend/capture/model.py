@@ -91,6 +91,10 @@ class Environment:
     rotation_z_deg: float = 0.0
     provenance: str = "given"  # or "estimated" (lighting alignment, backend.lighting)
 
+    def scaled(self, factor: float) -> "Environment":
+        """The same map ``factor`` times as bright (a fitted light factor applied)."""
+        return Environment(self.path, self.strength * factor, self.rotation_z_deg, self.provenance)
+
     def to_json(self, root: Path) -> dict:
         out = {"path": _rel(self.path, root), "strength": self.strength, "rotation_z_deg": self.rotation_z_deg}
         if self.provenance != "given":

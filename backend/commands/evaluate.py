@@ -167,8 +167,14 @@ def _run_view_metrics(report: dict, run: Path, capture, gt: Mesh, samples: int, 
     if display.vertex_colors is not None and gt.vertex_colors is not None and "albedo" not in report:
         pa, ga = geo.corresponding_albedo(display, gt, samples, seed)
         report["albedo"] = {"rmse": albedo_rmse(pa, ga), "rmse_scaled": albedo_rmse(pa, ga, fit_scale=True)}
+    try:  # held-out views share the capture's lighting: the fitted light factor applies to them
+        factor = float(json.loads((run / "report.json").read_text())["material"].get("light_factor") or 1.0)
+    except (OSError, ValueError, KeyError, TypeError, AttributeError):
+        factor = 1.0
     for name in [s for s in VIEW_SETS if capture.ground_truth.get(s)]:
         views = load_capture(capture.root / capture.ground_truth[name])
+        if name == "held_out" and views.environment is not None and factor != 1.0:
+            views.environment = views.environment.scaled(factor)
         out = run / "renders" / name
         for frame, image in render_views(display, views).items():
             write_image(out / f"{frame}.exr", image)

@@ -169,13 +169,6 @@ class LightFactor:
         return k
 
 
-def apply_light_factor(renderer, material: MeshColorMaterial, strength: float) -> None:
-    """Set a (new) renderer's environment scale to strength x the material's fitted factor."""
-    if ENV_SCALE in renderer.params:
-        renderer.params[ENV_SCALE] = mi.Float(strength * material.light_factor)
-        renderer.params.update()
-
-
 def fit(renderer, images: list[np.ndarray], weights: list[np.ndarray] | None, material: MeshColorMaterial,
         names: list[str], settings: FitSettings, light: bool = False, stage: str = "fit",
         emit=None, views: list[int] | None = None) -> FitResult:

@@ -180,7 +180,16 @@ class Appearance:
         if self.decision is not None:
             base = self.decision.settings(base, geometry=geometry)
         return SceneRenderer(mesh, material.field, [v.camera for v in views], [v.lights for v in views],
-                             self.capture.environment, base)
+                             lit_environment(self.capture, material), base)
+
+
+def lit_environment(capture: Capture, material):
+    """The capture's environment at the brightness the material was fitted under: the
+    staged material's light factor k (scene scale = strength x k) applies to every render of
+    the capture's own lighting."""
+    env = capture.environment
+    factor = getattr(material, "light_factor", 1.0)
+    return env if env is None or factor == 1.0 else env.scaled(factor)
 
 
 def _disable_specular(material) -> None:

@@ -27,7 +27,7 @@ from ..geometry.subdivide import midpoint
 from ..geometry.topology import enclosed, inspect, mean_edge_length
 from ..render.scene import RenderSettings
 from .. import fsio
-from .appearance import Appearance
+from .appearance import Appearance, lit_environment
 from .config import ReconstructConfig
 from .material import ConstantMaterial
 from .objective import Objective, seed_for
@@ -301,8 +301,8 @@ class Reconstruction:
         size = level_size(self.level, c.coarse_size, c.max_size)
         views = self.viewset.at(size)
         centres = np.array([v.camera.centre for v in views])
-        objective = Objective(self.mesh, self.material, views, self._settings(), self.capture.environment,
-                              tone=c.tone)
+        environment = lit_environment(self.capture, self.material)
+        objective = Objective(self.mesh, self.material, views, self._settings(), environment, tone=c.tone)
         lr0 = c.step * mean_edge_length(self.mesh)
         opt = VertexOptimizer(self.mesh.vertices, self.mesh.faces, self.stiffness.lambda_, lr0)
         material_opt = Adam(c.material_lr)
@@ -316,7 +316,8 @@ class Reconstruction:
         plateau.update(objective.validation_loss(vertices, val_ids, val_seed, c.validation_spp))
         stage = "geometry" if material else "polish"
         self.emit("stage", stage=stage, level=self.level, faces=self.mesh.n_faces, iteration=self.iteration,
-                  loss=plateau.best, size=size, seconds=round(self.elapsed(), 3))
+                  loss=plateau.best, size=size, seconds=round(self.elapsed(), 3),
+                  environment_strength=None if environment is None else environment.strength)
         best = (vertices.copy(), self._latents())
         first_loss = plateau.best
         rng = np.random.default_rng([c.seed, self.level])

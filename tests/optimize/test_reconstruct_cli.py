@@ -422,3 +422,4 @@ def test_cancel_stops_a_material_stage_within_seconds(capture, tmp_path):
     assert seconds < 2.5, f"cancel took {seconds:.1f} s"
     last = json.loads(rest.strip().splitlines()[-1])
     assert last["event"] == "cancelled"
+
