@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from ..capture.model import Capture
+from ..errors import InputError
 from ..geometry.init import initial_mesh
 from ..geometry.mesh import Mesh, load_mesh, save_mesh
 from ..geometry.poisson import SurfaceReconstructionError
@@ -125,6 +126,21 @@ class Reconstruction:
         return 0
 
     # -- start -------------------------------------------------------------------------------------
+    def _check_lights_outside(self, kind: str) -> None:
+        """A point light inside the starting surface leaves every render black and every
+        gradient zero: such a run would learn nothing and must not end "done"."""
+        lights = {tuple(np.round(light.position, 9)) for f in self.capture.frames for light in f.lights}
+        if not lights:
+            return
+        positions = np.array(sorted(lights))
+        inside = enclosed(self.mesh, positions)
+        if inside.any():
+            p = positions[np.argmax(inside)]
+            raise InputError(self.capture.root, f"the initial mesh ({kind}) encloses the point light at "
+                             f"({p[0]:.3g}, {p[1]:.3g}, {p[2]:.3g}): every render would be black",
+                             "start from a mesh that leaves the lights outside (--init sphere or a mesh file), "
+                             "or give masks that do not cover the lamp")
+
     def _start(self) -> None:
         c = self.config
         if self.resume:
@@ -135,6 +151,7 @@ class Reconstruction:
         self.progress.update(force=True, stage="init", level=0, iteration=0, iterations=0, loss=None, faces=0)
         self.mesh, kind = initial_mesh(self.capture, c.init, c.initial_faces,
                                        warn=lambda message: self.emit("warning", message=message))
+        self._check_lights_outside(kind)
         if self.material is None:
             self.material = ConstantMaterial.from_spec(c.material)
         coarse = self.viewset.at(c.coarse_size)
@@ -170,8 +187,6 @@ class Reconstruction:
 
     def _load_material(self, path: Path):
         """The saved material, of the model this run's --material asks for."""
-        from ..errors import InputError
-
         staged = self.appearance.driver is not None
         with np.load(path) as data:
             saved_staged = "resolution" in data.files  # mesh colors

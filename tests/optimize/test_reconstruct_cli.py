@@ -423,3 +423,21 @@ def test_cancel_stops_a_material_stage_within_seconds(capture, tmp_path):
     last = json.loads(rest.strip().splitlines()[-1])
     assert last["event"] == "cancelled"
 
+
+
+def test_a_point_light_inside_the_start_is_refused(capture, tmp_path):
+    """A lamp the visual hull encloses would leave every render black and every gradient zero:
+    the run stops with one line naming it instead of ending "done" having learnt nothing."""
+    import shutil
+
+    lamp = tmp_path / "lamp"
+    shutil.copytree(capture, lamp)
+    doc = json.loads((lamp / "capture.json").read_text())
+    for frame in doc["frames"]:
+        frame["lights"] = [{"type": "point", "position": [0.0, 0.0, 0.0], "intensity_w_per_sr": [5.0, 5.0, 5.0]}]
+    (lamp / "capture.json").write_text(json.dumps(doc))
+    proc = run_cli("reconstruct", lamp, "--out", tmp_path / "run", *FAST, "--init", "carve")
+    assert proc.returncode == 2, proc.stderr[-2000:]
+    line = proc.stderr.strip()
+    assert "\n" not in line and "encloses the point light at (0, 0, 0)" in line and "Fix:" in line
+    assert not (tmp_path / "run" / "report.json").exists()
