@@ -24,7 +24,7 @@ from .. import variant
 from ..errors import InputError, require
 from ..events import Emitter
 from ..optimize.config import STAGED_FACE_GROWTH, ReconstructConfig
-from ..optimize.presets import DEFAULT, PRESETS, calibrated, preset_for_budget
+from ..optimize.presets import DEFAULT, PRESETS, calibrated, load_calibration, preset_for_budget
 
 INIT_HELP = "carve (visual hull; default with masks), sphere, box, spheres (sphere cloud), points (SfM + Poisson), or a mesh file"
 
@@ -272,8 +272,15 @@ def run(args) -> int:
         emit("variant", variant=chosen, llvm=os.environ.get("DRJIT_LIBLLVM_PATH"))
         preset = choose_preset(args)
         expected = calibrated().get(preset, {})
+        # the calibration scene is point-lit: its time is no promise for an HDR-lit capture,
+        # whose steps can cost several times more (the ETA of the progress events is measured)
+        comparable = capture is not None and capture.environment is None
         emit("preset", preset=preset, chosen_for_budget=args.preset is None and args.time_budget is not None,
-             expected_minutes=expected.get("expected_minutes"), expected_f1=expected.get("expected_f1"))
+             expected_minutes=expected.get("expected_minutes") if comparable else None,
+             expected_f1=expected.get("expected_f1") if comparable else None,
+             calibrated_on=load_calibration().get("scene"),
+             note=None if comparable else "calibrated on a point-lit scene; this capture is lit by an "
+                                          "environment map: the time comes from its own measured steps (eta_s)")
         if video is not None:
             capture = video_capture(video, folder, args.resume, emit)
             Appearance.check(capture, config)

@@ -112,3 +112,23 @@ def test_the_whole_journey_with_the_panels_defaults(context, extension, orbit, t
     material = gltf["materials"][0]
     assert material["pbrMetallicRoughness"]["baseColorTexture"] is not None
     assert material["extensions"]["KHR_materials_specular"]["specularColorFactor"][0] > 0
+
+
+def test_the_headless_script_runs_the_same_journey(orbit, tmp_path):
+    """``scripts/reconstruct.py VIDEO --masks M --env E --out scene.blend --gltf out.glb``
+    (plain Python with the bpy module here; ``blender --background --python`` alike)."""
+    import os
+
+    video = shutil.copy(orbit / "orbit" / "orbit.mp4", tmp_path / "orbit.mp4")
+    out = tmp_path / "scene.blend"
+    env = dict(os.environ, SFT_RECONSTRUCT_SETTINGS=json.dumps(TINY))
+    proc = subprocess.run([sys.executable, str(REPO / "scripts" / "reconstruct.py"), str(video), "--masks",
+                           str(orbit / "orbit" / "masks" / "0000.png"), "--env", str(orbit / "sky.exr"), "--out",
+                           str(out), "--gltf", str(tmp_path / "out.glb"), "--samples", "4"],
+                          capture_output=True, text=True, timeout=1800, cwd=REPO, env=env)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert out.is_file() and out.with_suffix(".preview.png").is_file()
+    assert "KHR_materials_specular" in _glb_json(tmp_path / "out.glb").get("extensionsUsed", [])
+    runs = list((tmp_path / "orbit_capture" / "solved" / "runs").iterdir())
+    argv = json.loads((runs[0] / "command.json").read_text())["argv"]
+    assert argv[argv.index("--material") + 1] == "staged" and "--time-budget" in argv and "--env" in argv

@@ -401,6 +401,8 @@ def test_a_capture_with_no_light_is_refused_and_env_lights_it(capture, tmp_path)
     assert proc.returncode == 0, proc.stderr[-2000:]
     lights = next(e for e in events(run) if e["event"] == "effects")
     assert lights["enabled"]["emitters"] == ["environment"], lights
+    promise = next(e for e in events(run) if e["event"] == "preset")
+    assert promise["expected_minutes"] is None and "point-lit" in promise["note"], "a point-lit time promised"
 
 
 def test_cancel_stops_a_material_stage_within_seconds(capture, tmp_path):
