@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import json
 import os
-import re
 import shutil
 import subprocess
 import sys
@@ -76,47 +75,6 @@ def popen_kwargs(root: Path = PACKAGE_DIR) -> dict:
     else:
         kwargs["start_new_session"] = True
     return kwargs
-
-
-def run(python: str, args: list[str], root: Path = PACKAGE_DIR, timeout: float = 600.0) -> tuple[int, str]:
-    """Run a short backend command to completion: (exit code, the error line or log tail)."""
-    try:
-        proc = subprocess.run(command(python, *args), capture_output=True, text=True,
-                              timeout=timeout, **popen_kwargs(root))
-    except FileNotFoundError:
-        return 127, f"{python}: interpreter not found. Fix: choose one in the add-on preferences"
-    except subprocess.TimeoutExpired:
-        return 124, f"'python -m backend {args[0]}' did not finish in {timeout:.0f} s"
-    lines = [line for line in proc.stderr.splitlines() if line.strip()]
-    if proc.returncode == 2 and lines:
-        message = lines[-1].removeprefix("error: ")
-    else:
-        message = " | ".join(lines[-4:])
-    return proc.returncode, message
-
-
-_OPTIONS: dict[tuple, frozenset[str]] = {}
-
-
-def command_options(python: str, name: str, root: Path = PACKAGE_DIR) -> frozenset[str]:
-    """The ``--options`` a backend command lists in its ``--help`` (cached per version of
-    its source file); empty when the command is missing or does not answer."""
-    source = Path(root) / "backend" / "commands" / f"{name.replace('-', '_')}.py"
-    try:
-        key = (python, str(source), source.stat().st_mtime_ns)
-    except OSError:
-        return frozenset()
-    if key not in _OPTIONS:
-        try:
-            proc = subprocess.run(command(python, name, "--help"), capture_output=True, text=True,
-                                  timeout=60, **popen_kwargs(root))
-            found = frozenset()
-            if proc.returncode == 0:
-                found = frozenset(re.findall(r"(?<![\w-])--[a-z][a-z0-9-]*", proc.stdout))
-        except (OSError, subprocess.TimeoutExpired):
-            found = frozenset()
-        _OPTIONS[key] = found
-    return _OPTIONS[key]
 
 
 @dataclass

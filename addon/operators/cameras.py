@@ -1,6 +1,5 @@
 """Camera operators: import solved cameras, or solve them with the backend's SfM."""
 
-from pathlib import Path
 
 import bpy
 from bpy.props import BoolProperty, StringProperty

@@ -15,14 +15,13 @@ import numpy as np
 from .. import fsio
 from ..capture import load_capture
 from ..capture.convert import convert
-from ..capture.format import FILENAME, save_capture
+from ..capture.format import save_capture
 from ..capture.images import read_mask, read_rgba, write_mask
 from ..capture.importers.common import opencv_camera
 from ..capture.model import Capture, Environment, Frame
 from ..capture.undistort import needs_resampling, pinhole, resample
 from ..capture.validate import validate_environment
 from ..errors import require
-from ..events import Emitter
 from ..geometry.mesh import Mesh, save_mesh
 from .frames import Source, check_masks, open_source, pick_frames
 from .scene_frame import scene_frame
