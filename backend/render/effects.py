@@ -36,8 +36,9 @@ from .scene import RenderSettings
 
 EFFECTS = ("indirect", "shadows", "specular", "silhouettes")
 # indirect-visibility samples per pixel with shadow gradients (unguided, RenderSettings.guiding):
-# as accurate as Mitsuba's octree-guided 4 for a fraction of a step's cost
-SHADOW_SPPI = 16
+# about as accurate as Mitsuba's octree-guided 4, and the most that keeps a step within 2x of one
+# without shadow gradients (docs/notes/2026-11-24-hdr-shadow-gradients.md)
+SHADOW_SPPI = 12
 
 
 @dataclass
