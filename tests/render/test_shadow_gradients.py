@@ -87,7 +87,7 @@ def test_shadow_gradient_agrees_with_the_octree(scene):
     a, b = g_chosen[4:].ravel(), g_octree[4:].ravel()  # the ball's vertices
     cos = float(a @ b / (np.linalg.norm(a) * np.linalg.norm(b)))
     ratio = float(np.linalg.norm(a) / np.linalg.norm(b))
-    assert cos > 0.8 and 0.7 < ratio < 1.4, (cos, ratio)
+    assert cos > 0.95 and 0.85 < ratio < 1.15, (cos, ratio)  # two unbiased estimates of one term
 
 
 def test_reused_guiding_is_built_once_per_sensor_until_its_uses_run_out(scene):
