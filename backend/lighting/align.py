@@ -28,6 +28,7 @@ from ..capture.images import read_mask, read_rgba, srgb_to_linear
 from ..capture.model import Camera, CameraResponse, Capture
 from ..errors import require
 from ..geometry.mesh import Mesh
+from .response import MAX_ERROR as MAX_BACKGROUND_ERROR
 from .response import BackgroundMatch, camera_response, match_background
 from .transport import Tracer, pixel_rays, transport_matrix
 
@@ -41,6 +42,10 @@ class AlignConfig:
     size: int = 48  # long side of the small frames, pixels
     env_width: int = 64  # columns of the reduced map (rows: half)
     coarse_step_deg: float = 2.0
+    # shading minima within this factor of the best are near-ties (a map with lights on
+    # opposite sides): where the frames show the surroundings, the background decides
+    tie_ratio: float = 1.25
+    tie_window_deg: float = 10.0  # the background is searched this far around each tied minimum
     trim: float = 0.2  # share of pixels most brighter than the diffuse fit (highlights) dropped after the search
     gloss_alpha: float = 0.15  # GGX alpha of the glossy operator fitted beside the diffuse one (0: none)
     iterations: int = 40  # most refinement steps
@@ -62,6 +67,7 @@ class LightingEstimate:
     views: list[str] = field(default_factory=list)
     pixels: int = 0
     seconds: float = 0.0
+    ties: list[dict] = field(default_factory=list)  # near-tied shading minima and their background errors
 
     def provenance(self) -> dict:
         return {"aligned": True, "rotation_z_deg": self.rotation_z_deg, "strength": self.strength,
@@ -70,7 +76,8 @@ class LightingEstimate:
                 "coarse_curve": [[round(a, 3), float(f"{b:.6g}")] for a, b in self.coarse],
                 "refine_curve": [[round(a, 4), float(f"{b:.6g}")] for a, b in self.refine],
                 "scale_from": self.scale_from,
-                "background": self.background.provenance() if self.background else None}
+                "background": self.background.provenance() if self.background else None,
+                "ties": self.ties}
 
 
 def _box(array: np.ndarray, width: int, height: int) -> np.ndarray:
@@ -243,6 +250,10 @@ def align_lighting(capture: Capture, mesh: Mesh, env_pixels: np.ndarray, config:
                 emit("progress", stage="lighting:search", iteration=k + 1, iterations=len(grid),
                      fraction=(k + 1) / len(grid))
         best = min(coarse, key=lambda c: c[1])[0]
+        decided, ties = break_ties(coarse, samples, env_pixels, config)
+    if rotation_z_deg is None and decided is not None:  # the surroundings fix it more sharply than shading
+        theta, curve = decided, [(decided, loss(decided, gradient=False)[0])]
+    elif rotation_z_deg is None:
         if config.trim > 0:  # drop highlights, then search again near the best rotation
             excess = loss.brighter(best)
             loss = loss.subset(excess <= np.quantile(excess, 1.0 - config.trim))
@@ -255,7 +266,7 @@ def align_lighting(capture: Capture, mesh: Mesh, env_pixels: np.ndarray, config:
 
         theta, curve = refine(loss, best, config.coarse_step_deg, config, progress)
     else:
-        theta = float(rotation_z_deg)
+        theta, ties = float(rotation_z_deg), []
         curve = [(theta, loss(theta, gradient=False)[0])]
     value, _, gains = loss(theta, gradient=False)
     background = match_background([(s[1], s[2], s[4]) for s in samples], reduce_environment(env_pixels, 256), theta)
@@ -263,4 +274,42 @@ def align_lighting(capture: Capture, mesh: Mesh, env_pixels: np.ndarray, config:
     return LightingEstimate(rotation_z_deg=float(theta % 360.0), strength=strength,
                             gains=[float(g) for g in gains], loss=value, response=response, scale_from=scale_from,
                             background=background, coarse=coarse, refine=[(d % 360.0, v) for d, v in curve],
-                            views=[s[0] for s in samples], pixels=len(points), seconds=time.time() - start)
+                            views=[s[0] for s in samples], pixels=len(points), seconds=time.time() - start,
+                            ties=ties)
+
+
+def break_ties(coarse: list[tuple[float, float]], samples, env_pixels: np.ndarray,
+               config: AlignConfig) -> tuple[float | None, list[dict]]:
+    """When the coarse shading curve has several local minima within ``tie_ratio`` of the
+    lowest and the frames' background (the surroundings the map shows) fits near one of them
+    (relative squared residual below the response's bar), the rotation the background fits
+    best there, to 0.25 degrees; else None (the shading decides). Also returns the tied
+    minima with their background errors (1 = no fit)."""
+    degrees = np.array([c[0] for c in coarse])
+    values = np.array([c[1] for c in coarse])
+    lowest = float(values.min())
+    minima = [i for i in range(len(values))
+              if values[i] <= values[i - 1] and values[i] <= values[(i + 1) % len(values)]
+              and values[i] <= config.tie_ratio * lowest]
+    if len(minima) < 2:
+        return None, []
+    env = reduce_environment(env_pixels, 256)
+    pairs = [(s[1], s[2], s[4]) for s in samples]
+    ties = []
+    for i in minima:
+        window = degrees[i] + np.arange(-config.tie_window_deg, config.tie_window_deg + 1e-9, config.coarse_step_deg)
+        fits = [(match_background(pairs, env, float(d)), float(d)) for d in window]
+        fits = [(m.error, d) for m, d in fits if m is not None]
+        if not fits:  # too little background to decide
+            return None, []
+        error, at = min(fits)
+        ties.append({"rotation_z_deg": float(degrees[i]), "loss": float(values[i]), "background_error": error,
+                     "background_best_deg": at})
+    chosen = min(ties, key=lambda t: t["background_error"])
+    if chosen["background_error"] > MAX_BACKGROUND_ERROR:  # the background fits none: shading decides
+        return None, ties
+    chosen["chosen"] = True
+    fine = chosen["background_best_deg"] + np.arange(-config.coarse_step_deg, config.coarse_step_deg + 1e-9, 0.25)
+    error, at = min((match_background(pairs, env, float(d)).error, float(d)) for d in fine)
+    chosen["background_error"], chosen["background_best_deg"] = error, at
+    return at, ties

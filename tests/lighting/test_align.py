@@ -155,3 +155,45 @@ def test_camera_response_from_a_visible_background(scene, tmp_path):
     assert np.allclose(response.white_balance, balance / balance.mean(), rtol=0.03)
     assert abs(estimate.strength / (exposure * STRENGTH * balance.mean()) - 1) < 0.10
     assert np.allclose(implied, albedo, rtol=0.10)
+
+
+def test_the_background_breaks_a_near_tie_of_the_shading(scene, tmp_path):
+    """Two equal lamps on opposite sides light the object alike at the true rotation and half
+    a turn from it; its albedo (brighter on the side the wrong rotation would light) tips the
+    constant-albedo shading fit to the wrong one. The frames' background (the map's dim,
+    asymmetric surroundings) decides between the tied shading minima."""
+    from backend.capture.images import write_image
+    from backend.capture.model import Capture, Frame
+    from backend.geometry.mesh import load_mesh
+    from backend.render.scene import RenderSettings, SceneRenderer
+    from backend.render.views import display_field
+
+    capture, hull, _ = scene
+    h, w = 64, 128
+    v, u = np.mgrid[:h, :w] + 0.5
+    env = np.zeros((h, w, 3), np.float32)
+    env[...] = (0.02 + 0.08 * (u / w))[..., None] * np.array([1.0, 0.8, 0.6], np.float32)  # dim, one-sided
+    for centre in (0.25 * w, 0.75 * w):  # two equal lamps half a turn apart, 30 degrees up
+        env[(u - centre) ** 2 + (v - h / 3) ** 2 < 16] = 40.0
+    path = tmp_path / "lamps.exr"
+    write_image(path, env)
+    mesh = load_mesh(capture.root / "gt" / "mesh.ply")
+    cams = [f.camera for f in capture.frames]
+    a = np.radians(ROTATION)
+    side = mesh.vertices[:, :2] @ np.array([np.cos(a), -np.sin(a)])  # along the lamps' axis
+    mesh.vertex_colors = np.repeat(np.where(side > 0, 0.15, 0.8)[:, None], 3, 1).astype(np.float32)
+    mesh.attributes = {"specular": np.zeros(mesh.n_vertices, np.float32),
+                       "roughness": np.full(mesh.n_vertices, 0.5, np.float32)}
+    renderer = SceneRenderer(mesh, display_field(mesh), cams, [[] for _ in cams],
+                             Environment(path, 1.0, ROTATION), RenderSettings(spp=32, max_depth=2, hide_emitters=False),
+                             env_pixels=env)
+    frames = []
+    for i, f in enumerate(capture.frames):
+        image = tmp_path / f"{f.name}.png"
+        write_image(image, renderer.render_numpy(i, seed=i))
+        frames.append(Frame(f.name, image, f.camera, mask=f.mask))
+    estimate = align_lighting(Capture(tmp_path, frames, Environment(path)), hull, env, AlignConfig())
+    print(f"rotation {estimate.rotation_z_deg:.2f}, ties {estimate.ties}")
+    assert _angle_error(estimate.rotation_z_deg, ROTATION) < 5.0
+    assert len(estimate.ties) >= 2 and sum(t.get("chosen", False) for t in estimate.ties) == 1
+    assert estimate.provenance()["ties"] == estimate.ties
