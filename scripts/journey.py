@@ -17,6 +17,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -82,9 +83,9 @@ def main(argv=None) -> int:
     sft = bpy.context.scene.sft
     if args.budget is not None:
         sft.time_budget = args.budget
-    video = out / args.video.name
+    video = out / args.video.name  # a copy: Import Video puts the capture beside the video
     if not video.exists():
-        video.symlink_to(args.video.resolve())
+        shutil.copyfile(args.video, video)
     step("Import Video", lambda: bpy.ops.sft.import_video(filepath=str(video)))
     capture = Path(sft.capture_dir)
     manifest = json.loads((capture / "frames.json").read_text())
