@@ -98,7 +98,7 @@ def test_preset_for_budget_picks_the_most_accurate_preset_that_fits(tmp_path):
 
 def test_settings_turn_into_reconstruct_options_and_knobs():
     s = Setting("x", "draft", max_size=64, max_depth=3, time_budget=1.5)
-    assert s.args() == ["--preset", "draft", "--max-size", "64", "--time-budget", "1.5",
+    assert s.args() == ["--preset", "draft", "--material", "constant", "--max-size", "64", "--time-budget", "1.5",
                         "--integrator", "prb_projective", "--max-depth", "3"]
     k = s.knobs()
     assert k["max_size"] == 64 and k["bounces"] == 2 and k["time_budget_min"] == 1.5
