@@ -9,7 +9,7 @@ import bpy
 from .. import ROOT_PACKAGE, interpreter, jobs
 from ..errors import AddonInputError, require
 from ..preferences import backend_python, installed_venv
-from .modal import JobModal
+from .modal import CancelJob, JobModal
 
 
 def _set_check_result(context, text: str) -> None:
@@ -57,20 +57,12 @@ class SFT_OT_install_backend(JobModal, bpy.types.Operator):
         return {"FINISHED"}
 
 
-class SFT_OT_install_backend_cancel(bpy.types.Operator):
+class SFT_OT_install_backend_cancel(CancelJob, bpy.types.Operator):
     """Stop the installation; the half-made environment is removed"""
 
     bl_idname = "sft.install_backend_cancel"
     bl_label = "Cancel Install"
-
-    @classmethod
-    def poll(cls, context):
-        job = jobs.ACTIVE.get("install")
-        return job is not None and job.running
-
-    def execute(self, context):
-        jobs.ACTIVE["install"].stop()
-        return {"FINISHED"}
+    job_kind = "install"
 
 
 class CheckJob(jobs.Job):

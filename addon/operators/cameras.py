@@ -10,7 +10,7 @@ from .. import frames as fr
 from ..errors import AddonInputError, require
 from ..preferences import backend_python, backend_ready
 from .common import abspath, capture_dir, fail
-from .modal import JobModal
+from .modal import CancelJob, JobModal
 
 
 def load_cameras(context, info: capture_file.CaptureInfo, show_frames: bool, with_environment: bool) -> str:
@@ -162,21 +162,12 @@ class SFT_OT_solve_cameras(JobModal, bpy.types.Operator):
         return {"FINISHED"}
 
 
-class SFT_OT_solve_cameras_cancel(bpy.types.Operator):
+class SFT_OT_solve_cameras_cancel(CancelJob, bpy.types.Operator):
     """Stop camera solving (the capture folder is left as it was)"""
 
     bl_idname = "sft.solve_cameras_cancel"
     bl_label = "Cancel"
-
-    @classmethod
-    def poll(cls, context):
-        job = jobs.ACTIVE.get("solve")
-        return job is not None and job.running
-
-    def execute(self, context):
-        jobs.ACTIVE["solve"].stop()
-        jobs.tag_redraw(context)
-        return {"FINISHED"}
+    job_kind = "solve"
 
 
 CLASSES = (SFT_OT_import_cameras, SFT_OT_solve_cameras, SFT_OT_solve_cameras_cancel)

@@ -169,28 +169,30 @@ class SFT_OT_import_masks(bpy.types.Operator, ImportHelper):
             target = fr.MATERIALS if self.material else fr.MASKS
             out = tmp / target
             out.mkdir()
-            covered = 0
-            for frame, file in zip(frames, files):
-                rgba = read_rgba(file)[0]
-                require(rgba.shape[:2] == size, file,
-                        f"mask is {rgba.shape[1]}x{rgba.shape[0]}, the frames are {size[1]}x{size[0]}",
-                        "export the masks at the frames' size")
-                mask = fr.mask_from_rgba(rgba) > 0
-                covered += int(mask.any())
-                if self.material:
-                    previous = capture / fr.MATERIALS / f"{frame['name']}.png"
-                    labels = (np.rint(read_rgba(previous)[0][..., 0] * 255).astype(np.uint8)
-                              if previous.is_file() else np.zeros(size, np.uint8))
-                    labels[mask] = self.material
-                    write_atomic(out / f"{frame['name']}.png", png_bytes(labels))
-                else:
-                    write_atomic(out / f"{frame['name']}.png", png_bytes(mask.astype(np.uint8) * 255))
+            covered = sum(self._write_mask(file, size, "the frames are", out / f"{frame['name']}.png",
+                                           capture / fr.MATERIALS / f"{frame['name']}.png")
+                          for frame, file in zip(frames, files))
             require(covered > 0, source, "every mask is empty", "masks mark the object in white (or alpha)")
             replace_dir(out, capture / target)
             return len(frames)
         finally:
             shutil.rmtree(tmp, ignore_errors=True)
 
+    def _write_mask(self, file: Path, size: tuple[int, int], what: str, out: Path, previous: Path | None) -> bool:
+        """Write one imported mask: a 0/255 object mask, or this Material Label painted into
+        the ``previous`` label image. Returns whether the mask marks anything."""
+        rgba = read_rgba(file)[0]
+        require(rgba.shape[:2] == size, file, f"mask is {rgba.shape[1]}x{rgba.shape[0]}, {what} {size[1]}x{size[0]}",
+                "export the masks at the frames' size")
+        mask = fr.mask_from_rgba(rgba) > 0
+        if self.material:
+            labels = (np.rint(read_rgba(previous)[0][..., 0] * 255).astype(np.uint8)
+                      if previous is not None and previous.is_file() else np.zeros(size, np.uint8))
+            labels[mask] = self.material
+            write_atomic(out, png_bytes(labels))
+        else:
+            write_atomic(out, png_bytes(mask.astype(np.uint8) * 255))
+        return bool(mask.any())
 
     def _import_onto_cameras(self, capture: Path, source: Path) -> int:
         """Masks for a capture of imported cameras (capture.json): one per frame, in name
@@ -219,21 +221,9 @@ class SFT_OT_import_masks(bpy.types.Operator, ImportHelper):
             out.mkdir()
             covered = 0
             for i, (name, size, file) in enumerate(zip(names, sizes, files)):
-                rgba = read_rgba(file)[0]
-                require(rgba.shape[:2] == size, file,
-                        f"mask is {rgba.shape[1]}x{rgba.shape[0]}, frame {name} is {size[1]}x{size[0]}",
-                        "export the masks at the frames' size")
-                mask = fr.mask_from_rgba(rgba) > 0
-                covered += int(mask.any())
                 rel = f"{target}/{bpy.path.clean_name(name)}.png"
-                if self.material:
-                    previous = capture / frames[i].get("material_mask", "") if frames[i].get("material_mask") else None
-                    labels = (np.rint(read_rgba(previous)[0][..., 0] * 255).astype(np.uint8)
-                              if previous is not None and previous.is_file() else np.zeros(size, np.uint8))
-                    labels[mask] = self.material
-                    write_atomic(tmp / rel, png_bytes(labels))
-                else:
-                    write_atomic(tmp / rel, png_bytes(mask.astype(np.uint8) * 255))
+                previous = capture / frames[i]["material_mask"] if frames[i].get("material_mask") else None
+                covered += self._write_mask(file, size, f"frame {name} is", tmp / rel, previous)
                 frames[i][key] = rel
             require(covered > 0, source, "every mask is empty", "masks mark the object in white (or alpha)")
             replace_dir(out, capture / target)

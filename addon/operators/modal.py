@@ -91,3 +91,20 @@ class JobModal:
         last snapshot stays on disk."""
         jobs.stop_unattended(self._job)
         self._status(context, None)
+
+
+class CancelJob:
+    """A Cancel button for the job of kind ``job_kind``: a clean stop (the backend keeps what
+    it had finished); greyed out while no such job runs."""
+
+    job_kind = "job"
+
+    @classmethod
+    def poll(cls, context):
+        job = jobs.ACTIVE.get(cls.job_kind)
+        return job is not None and job.running
+
+    def execute(self, context):
+        jobs.ACTIVE[self.job_kind].stop()
+        jobs.tag_redraw(context)
+        return {"FINISHED"}

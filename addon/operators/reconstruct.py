@@ -14,7 +14,7 @@ from .. import interpreter, jobs, progress, scene_mesh
 from ..errors import AddonInputError, require
 from ..preferences import backend_python, backend_ready
 from .common import abspath, capture_dir
-from .modal import JobModal
+from .modal import CancelJob, JobModal
 
 
 def reconstruct_args(capture: Path, run: Path, preset: str | None, extra: str = "",
@@ -198,21 +198,12 @@ class SFT_OT_reconstruct_resume(_ReconstructModal, bpy.types.Operator):
         return self.launch(context, resume_args(run), run)
 
 
-class SFT_OT_reconstruct_cancel(bpy.types.Operator):
+class SFT_OT_reconstruct_cancel(CancelJob, bpy.types.Operator):
     """Stop the running reconstruction cleanly (the last snapshot stays in the scene and on disk)"""
 
     bl_idname = "sft.reconstruct_cancel"
     bl_label = "Cancel"
-
-    @classmethod
-    def poll(cls, context):
-        job = jobs.ACTIVE.get("reconstruct")
-        return job is not None and job.running
-
-    def execute(self, context):
-        jobs.ACTIVE["reconstruct"].stop()
-        jobs.tag_redraw(context)
-        return {"FINISHED"}
+    job_kind = "reconstruct"
 
 
 CLASSES = (SFT_OT_reconstruct, SFT_OT_reconstruct_resume, SFT_OT_reconstruct_cancel)

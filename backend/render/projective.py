@@ -72,24 +72,23 @@ class ReusedGuiding(mi.ad.ProjectiveDetail):
             return moved > self.move * entry["edge"]
         return False
 
+    def _build(self, scene, sensor, seed) -> None:
+        """Mitsuba's own build of the guiding distribution, timed (wall and CPU seconds)."""
+        start, cpu = time.perf_counter(), time.process_time()
+        super().init_indirect_silhouette(scene, sensor, seed)
+        dr.sync_thread()
+        self.builds += 1
+        self.build_seconds += time.perf_counter() - start
+        self.build_cpu_seconds += time.process_time() - cpu
+
     def init_indirect_silhouette(self, scene, sensor, seed):
         if self.reuse == 1 and self.move <= 0 and not self.hold:
-            start, cpu = time.perf_counter(), time.process_time()
-            super().init_indirect_silhouette(scene, sensor, seed)
-            dr.sync_thread()
-            self.builds += 1
-            self.build_seconds += time.perf_counter() - start
-            self.build_cpu_seconds += time.process_time() - cpu
+            self._build(scene, sensor, seed)
             return
         key, positions = _mesh_state(scene)
         entry = self.cache.get(id(sensor))
         if self._stale(entry, key, positions):
-            start, cpu = time.perf_counter(), time.process_time()
-            super().init_indirect_silhouette(scene, sensor, seed)
-            dr.sync_thread()
-            self.builds += 1
-            self.build_seconds += time.perf_counter() - start
-            self.build_cpu_seconds += time.process_time() - cpu
+            self._build(scene, sensor, seed)
             # the sensor is kept so its id is not reused while the entry lives
             entry = {"distr": self.guiding_distr, "uses": 0, "key": key, "sensor": sensor,
                      "positions": positions if self.move > 0 else [],
