@@ -139,7 +139,7 @@ class Installer:
         except ProcessError as err:
             if any(OFFLINE.search(line) for line in err.tail):
                 raise OfflineError("cannot reach the Python package index to download the backend's libraries "
-                                   "(about 600 MB). Fix: connect to the internet and press Install Backend again, "
+                                   "(about 340 MB). Fix: connect to the internet and press Install Backend again, "
                                    "or choose an interpreter that imports mitsuba in the preferences") from None
             raise RuntimeError(f"pip failed (exit {err.code}): {err.last()}") from None
         self.progress("install", 1.0)

@@ -20,7 +20,7 @@ def _set_check_result(context, text: str) -> None:
 
 class SFT_OT_install_backend(JobModal, bpy.types.Operator):
     """Create a private Python environment in the extension's user folder and install the
-    backend's pinned libraries into it (about 600 MB; needs the internet once)"""
+    backend's pinned libraries into it (a 340 MB download, 1.1 GB on disk; needs the internet once)"""
 
     bl_idname = "sft.install_backend"
     bl_label = "Install Backend"
