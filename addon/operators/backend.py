@@ -9,6 +9,7 @@ import bpy
 from .. import ROOT_PACKAGE, interpreter, jobs
 from ..errors import AddonInputError, require
 from ..preferences import backend_python, installed_venv
+from .common import idle
 from .modal import CancelJob, JobModal
 
 
@@ -29,11 +30,7 @@ class SFT_OT_install_backend(JobModal, bpy.types.Operator):
 
     @classmethod
     def poll(cls, context):
-        job = jobs.ACTIVE.get("install")
-        if job is not None and job.running:
-            cls.poll_message_set("the backend is being installed")
-            return False
-        return True
+        return idle(cls, "install")
 
     def start(self, context) -> jobs.Job:
         venv = installed_venv()

@@ -8,8 +8,8 @@ from bpy_extras.io_utils import ImportHelper
 from .. import capture_file, interpreter, jobs, progress, world
 from .. import frames as fr
 from ..errors import AddonInputError, require
-from ..preferences import backend_python, backend_ready
-from .common import abspath, capture_dir, fail
+from ..preferences import backend_python
+from .common import abspath, capture_dir, fail, has_backend, idle
 from .modal import CancelJob, JobModal
 
 
@@ -54,11 +54,7 @@ class SFT_OT_import_cameras(bpy.types.Operator, ImportHelper, JobModal):
 
     @classmethod
     def poll(cls, context):
-        job = jobs.ACTIVE.get("import")
-        if job is not None and job.running:
-            cls.poll_message_set("cameras are being imported")
-            return False
-        return True
+        return idle(cls, "import")
 
     def execute(self, context):
         try:
@@ -110,9 +106,7 @@ class SFT_OT_solve_cameras(JobModal, bpy.types.Operator):
 
     @classmethod
     def poll(cls, context):
-        job = jobs.ACTIVE.get(cls.job_kind)
-        if job is not None and job.running:
-            cls.poll_message_set("the cameras are being solved")
+        if not idle(cls, cls.job_kind):
             return False
         sft = context.scene.sft
         capture = abspath(sft.capture_dir) if sft.capture_dir else None
@@ -122,10 +116,7 @@ class SFT_OT_solve_cameras(JobModal, bpy.types.Operator):
         if not (capture / fr.MASKS).is_dir():
             cls.poll_message_set("import the object masks first (Import Masks)")
             return False
-        if not backend_ready(context):
-            cls.poll_message_set("no backend: press Install Backend in the add-on preferences")
-            return False
-        return True
+        return has_backend(cls, context)
 
     def start(self, context) -> jobs.Job:
         capture = capture_dir(context)

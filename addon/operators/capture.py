@@ -16,21 +16,14 @@ from ..errors import AddonInputError, require
 from ..files import png_bytes, replace_dir, write_atomic
 from ..images import luminance, read_rgba
 from ..video import VIDEO_SUFFIXES, render_frames, video_info
-from .common import Busy, abspath, capture_dir, fail
+from .common import Busy, abspath, capture_dir, fail, idle
 
 CAPTURE_FILE = "capture.json"
 
 
 def _idle(cls) -> bool:
     """Frames, masks and the map change under a running camera solve or reconstruction: wait."""
-    from .. import jobs
-
-    for kind, what in (("solve", "the cameras are being solved"), ("reconstruct", "a reconstruction is running")):
-        job = jobs.ACTIVE.get(kind)
-        if job is not None and job.running:
-            cls.poll_message_set(f"{what}: wait for it or cancel it")
-            return False
-    return True
+    return idle(cls, "solve", "reconstruct")
 
 
 class SFT_OT_import_video(bpy.types.Operator, ImportHelper):

@@ -22,6 +22,33 @@ def capture_dir(context, override: str = "", must_exist: bool = True) -> Path:
     return path
 
 
+RUNNING = {"install": "the backend is being installed", "import": "cameras are being imported",
+           "solve": "the cameras are being solved: wait for it or cancel it",
+           "reconstruct": "a reconstruction is running: wait for it or cancel it"}
+
+
+def idle(cls, *kinds: str) -> bool:
+    """poll(): False, with the reason, while a job of one of ``kinds`` runs."""
+    from .. import jobs
+
+    for kind in kinds:
+        job = jobs.ACTIVE.get(kind)
+        if job is not None and job.running:
+            cls.poll_message_set(RUNNING[kind])
+            return False
+    return True
+
+
+def has_backend(cls, context) -> bool:
+    """poll(): False, with the fix, until some backend interpreter is set up."""
+    from ..preferences import backend_ready
+
+    if not backend_ready(context):
+        cls.poll_message_set("no backend: press Install Backend in the add-on preferences")
+        return False
+    return True
+
+
 def poll_reconstruction(cls, context, needs_capture: bool = False) -> bool:
     """Operators on the reconstructed mesh: grey them out (with the reason) until it exists."""
     from ..scene_mesh import OBJECT_NAME

@@ -12,8 +12,8 @@ from bpy.props import StringProperty
 
 from .. import interpreter, jobs, progress, scene_mesh
 from ..errors import AddonInputError, require
-from ..preferences import backend_python, backend_ready
-from .common import abspath, capture_dir
+from ..preferences import backend_python
+from .common import abspath, capture_dir, has_backend, idle
 from .modal import CancelJob, JobModal
 
 
@@ -85,9 +85,7 @@ def resumable(run_dir: str) -> bool:
 
 
 def _poll_reconstruct(cls, context) -> bool:
-    job = jobs.ACTIVE.get("reconstruct")
-    if job is not None and job.running:
-        cls.poll_message_set("a reconstruction is running")
+    if not idle(cls, "reconstruct"):
         return False
     sft = context.scene.sft
     if not sft.capture_dir:
@@ -96,10 +94,7 @@ def _poll_reconstruct(cls, context) -> bool:
     if not (abspath(sft.capture_dir) / "capture.json").is_file():
         cls.poll_message_set("the capture has no cameras yet: Solve Cameras or Import Cameras")
         return False
-    if not backend_ready(context):
-        cls.poll_message_set("no backend: press Install Backend in the add-on preferences")
-        return False
-    return True
+    return has_backend(cls, context)
 
 
 class _ReconstructModal(JobModal):
