@@ -5,7 +5,12 @@ file or a capture folder whose ``capture.json`` names ``ground_truth.mesh``. Geo
 compared in the truth's normalised frame (:mod:`backend.metrics.geometry`); albedo RMSE is
 added when both meshes carry vertex colours; PSNR/SSIM are added for ``--renders``, a folder
 of predicted renders of the truth capture's held-out (or relit, ``--views relit``) views named
-``<frame name>.exr`` (or ``.png``)."""
+``<frame name>.exr`` (or ``.png``).
+
+For a run folder the final display mesh is rendered at the truth's held-out and relit views.
+When the run fitted a specular lobe (its display mesh carries a non-zero ``specular``) and the
+truth carries its material, the held-out views are also scored as the paper's Table 1 splits
+them: a diffuse-only and a specular-only pass of both (:mod:`backend.material.passes`)."""
 
 from __future__ import annotations
 
@@ -179,6 +184,45 @@ def _run_view_metrics(report: dict, run: Path, capture, gt: Mesh, samples: int, 
         for frame, image in render_views(display, views).items():
             write_image(out / f"{frame}.exr", image)
         report.setdefault("views", {})[name] = _view_metrics(capture, out, name)
+        if name == "held_out" and has_specular_lobe(display) and _material_of(gt) is not None:
+            report["views"][name]["components"] = _component_metrics(display, gt, views)
+
+
+SPECULAR_FLOOR = 1e-4  # a display mesh whose specular stays below this has no lobe to score
+
+
+def has_specular_lobe(mesh: Mesh) -> bool:
+    spec = mesh.attributes.get("specular")
+    return spec is not None and float(np.max(spec)) > SPECULAR_FLOOR
+
+
+def _material_of(mesh: Mesh):
+    """The truth's material as a field, or None when its mesh does not carry one."""
+    from ..render.fields import VertexField
+
+    if mesh.vertex_colors is None or not all(k in mesh.attributes for k in ("specular", "roughness")):
+        return None
+    return VertexField(mesh.faces, mesh.vertex_colors, mesh.attributes["specular"], mesh.attributes["roughness"])
+
+
+def _component_metrics(display: Mesh, gt: Mesh, views, spp: int = 64, max_depth: int = 4) -> dict:
+    """PSNR/SSIM of the diffuse-only and specular-only passes of ``display`` against the same
+    passes of the truth, both rendered now with the same seeds at the ``views`` frames."""
+    from ..capture.images import read_mask
+    from ..material.passes import component_renders
+    from ..metrics.image import image_metrics
+    from ..render.views import display_field
+
+    components = ("diffuse", "specular")
+    kw = dict(environment=views.environment, spp=spp, max_depth=max_depth, components=components)
+    predicted = component_renders(display, display_field(display), views.frames, **kw)
+    truth = component_renders(gt, _material_of(gt), views.frames, **kw)
+    masks = [read_mask(f.mask) for f in views.frames] if all(f.mask is not None for f in views.frames) else None
+    out = {}
+    for name in components:
+        scores = image_metrics(predicted[name], truth[name], masks)
+        out[name] = {"psnr": scores["psnr"], "ssim": scores["ssim"]}
+    return out
 
 
 def json_safe(value):
@@ -211,6 +255,9 @@ def table(report: dict) -> str:
     for im in ([report["images"]] if "images" in report else []) + list(report.get("views", {}).values()):
         rows.append((f"psnr {im['set']}", f"{im['psnr']:.2f} dB", f"{len(im['views'])} views, sRGB"))
         rows.append((f"ssim {im['set']}", f"{im['ssim']:.4f}", ""))
+        for name, scores in im.get("components", {}).items():
+            rows.append((f"psnr {name}", f"{scores['psnr']:.2f} dB",
+                         f"SSIM {scores['ssim']:.4f}; {name}-only pass against the truth's"))
     width = max(len(r[1]) for r in rows)
     return "\n".join(f"{name:<14} {value:>{width}}  {note}".rstrip() for name, value, note in rows)
 

@@ -177,3 +177,33 @@ def test_synthetic_capture_truth_scores_itself_perfectly(tiny_capture, tmp_path,
         assert report["albedo"]["rmse"] == 0
         assert report["images"]["set"] == views and len(report["images"]["views"]) == len(frames)
         assert report["images"]["psnr"] == "inf" and report["images"]["ssim"] == pytest.approx(1.0)
+
+
+def test_run_with_specular_lobe_scores_diffuse_and_specular_passes(tiny_capture, tmp_path, capsys):
+    # a run whose display mesh is the truth with 0.8x the albedo: its specular-only pass equals
+    # the truth's (same seeds), its diffuse-only pass does not
+    from backend.capture import load_capture
+    from backend.geometry.mesh import load_mesh
+
+    truth = load_capture(tiny_capture, validate=False)
+    gt = load_mesh(truth.path(truth.ground_truth["mesh"]))
+    assert float(gt.attributes["specular"].max()) > 0
+    runs = {}
+    for name, specular in (("glossy", gt.attributes["specular"]), ("matte", np.zeros_like(gt.attributes["specular"]))):
+        run = tmp_path / name
+        display = gt.copy()
+        display.vertex_colors = gt.vertex_colors * np.float32(0.8)
+        display.attributes["specular"] = specular
+        save_mesh(run / "result.ply", display)
+        save_mesh(run / "snapshots" / "display.ply", display)
+        (run / "snapshot.json").write_text(json.dumps({"mesh": "snapshots/display.ply"}))
+        out = tmp_path / f"{name}.json"
+        assert evaluate(run, "--truth", tiny_capture, "--samples", 1000, "--out", out) == 0, capsys.readouterr().err
+        runs[name] = (json.loads(out.read_text()), capsys.readouterr().out)
+    report, table = runs["glossy"]
+    parts = report["views"]["held_out"]["components"]
+    assert parts["specular"]["psnr"] == "inf"
+    assert 10 < parts["diffuse"]["psnr"] < 60 and parts["diffuse"]["ssim"] < 1
+    assert "psnr diffuse" in table and "psnr specular" in table
+    report, table = runs["matte"]
+    assert "components" not in report["views"]["held_out"] and "psnr diffuse" not in table
