@@ -68,7 +68,7 @@ def _log(message: str) -> None:
 def capture_for(name: str, spec, out: Path, emit):
     """The mesh's synthetic capture (synthesised on first use, or when the spec changed)."""
     from .. import fsio
-    from ..capture.format import load_capture
+    from ..capture.load import load_capture
     from ..errors import InputError
     from ..geometry.mesh import load_mesh, save_mesh
     from ..geometry.topology import keep_largest_components
@@ -159,7 +159,7 @@ def _scores(rendered: dict, truth: dict, masks) -> dict:
 
 def evaluate(name: str, capture, run: Path, spec) -> dict:
     """Table rows for one mesh: initialisation and reconstruction."""
-    from ..capture.format import load_capture
+    from ..capture.load import load_capture
     from ..capture.images import read_mask, read_rgba
     from ..geometry.mesh import Mesh, load_mesh
     from ..material.model import MeshColorMaterial

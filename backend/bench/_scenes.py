@@ -10,6 +10,7 @@ from ..capture.format import save_capture
 from ..capture.images import write_image, write_mask
 from ..capture.model import Camera, Capture, Frame, PointLight
 from ..geometry.mesh import Mesh, save_mesh
+from ..geometry.raycast import RayCaster
 from ..synth.layout import look_at
 from ..synth.procedural import icosphere
 
@@ -98,12 +99,9 @@ def divot_capture(out: Path, depth: float = 0.15, width: float = 0.35, resolutio
 
 def radial_profile(mesh: Mesh, directions: np.ndarray) -> np.ndarray:
     """Distance from the origin to the surface along each unit direction (first hit)."""
-    from ..geometry.remesh import first_hits
-
     far = 10.0 * float(np.abs(mesh.vertices).max())
-    valid, p, _ = first_hits(mesh, directions * far, -directions)
-    r = np.linalg.norm(p, axis=1)
-    return np.where(valid, r, np.nan)
+    hits = RayCaster(mesh).intersect(directions * far, -directions)
+    return np.where(hits.hit, np.linalg.norm(hits.points, axis=1), np.nan)
 
 
 def divot_depth(mesh: Mesh, width: float, axis=(1.0, 0.0, 0.0)) -> float:

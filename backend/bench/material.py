@@ -91,7 +91,7 @@ def run(args) -> int:
 
 def synthetic_capture(spec: MaterialBench, out: Path, emit):
     """The benchmark's capture (synthesised on first use)."""
-    from ..capture.format import load_capture
+    from ..capture.load import load_capture
     from ..synth.capture import SynthSpec, synthesize
 
     folder = out / "capture"
@@ -125,7 +125,7 @@ def _renders(mesh, field, view_set, spp: int, max_depth: int, seed: int = 900) -
 
 
 def benchmark(spec: MaterialBench, out: Path, emit) -> dict:
-    from ..capture.format import load_capture
+    from ..capture.load import load_capture
     from ..capture.images import read_mask, read_rgba
     from ..geometry.mesh import load_mesh, save_mesh
     from ..material import stages

@@ -539,7 +539,7 @@ def reconstruct(capture_dir: Path, run_dir: Path, settings, material=None, **rec
     """Run the reconstruction loop in this process as the command does, recording every step.
     Returns (exit code or the InputError raised, StepLog)."""
     from .. import variant
-    from ..capture.format import load_capture
+    from ..capture.load import load_capture
     from ..errors import InputError
     from ..events import Emitter
     from ..optimize.loop import Reconstruction

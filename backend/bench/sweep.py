@@ -209,7 +209,7 @@ def view_scores(run: Path, capture, spp: int = 128) -> dict:
     """PSNR/SSIM of the run's result, rendered with its material, at the capture's ground-truth
     held-out ("novel") and relit views, on the object's masks; path traced with as many
     vertices as the capture was. Empty when the capture has no such views."""
-    from ..capture.format import load_capture
+    from ..capture.load import load_capture
     from ..capture.images import read_linear_rgb, read_mask
     from ..metrics.image import image_metrics
     from ..render.views import render_views
@@ -235,7 +235,7 @@ def view_scores(run: Path, capture, spp: int = 128) -> dict:
 def measure(scene: str, capture_dir: Path, setting: Setting, out: Path, repeats: int = 1,
             repeat_under: float = 0.0, variant: str | None = None, eval_spp: int = 64, seed: int = 0) -> dict:
     """Run one setting on one scene (repeated while cheap) and score its result."""
-    from ..capture.format import load_capture
+    from ..capture.load import load_capture
 
     safe = setting.name.replace(":", "_").replace("=", "-")
     run = out / "runs" / scene / safe

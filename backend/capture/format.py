@@ -1,7 +1,7 @@
 """The on-disk capture format (docs/capture-format.md): a folder with ``capture.json``.
 
-``load_capture`` also accepts any importable layout (NeRF ``transforms.json``, a COLMAP
-model, IDR/NeuS ``cameras*.npz``, Middlebury ``*_par.txt``) so users never convert by hand."""
+Reading and writing our own format only; :func:`backend.capture.load.load_capture` is the
+entry that reads any capture (ours or an importable layout)."""
 
 from __future__ import annotations
 
@@ -110,7 +110,8 @@ def parse_camera_response(d: dict | None, path: Path) -> CameraResponse:
     return response
 
 
-def _load_native(folder: Path) -> Capture:
+def load_native(folder: Path) -> Capture:
+    """The capture in ``folder``/capture.json (not yet validated)."""
     path = folder / FILENAME
     try:
         doc = json.loads(path.read_text())
@@ -161,22 +162,3 @@ def save_capture(capture: Capture) -> Path:
     path = Path(capture.root) / FILENAME
     fsio.write_json(path, capture_to_json(capture))
     return path
-
-
-def load_capture(path: str | Path, validate: bool = True) -> Capture:
-    """Load a capture folder in our format or any importable layout."""
-    path = Path(path)
-    if not path.exists():
-        raise InputError(path, "capture not found", "give a capture folder, transforms.json or COLMAP model")
-    folder = path if path.is_dir() else path.parent
-    if path.is_dir() and (path / FILENAME).is_file() or path.name == FILENAME:
-        capture = _load_native(folder)
-    else:
-        from .importers import import_any
-
-        capture = import_any(path)
-    if validate:
-        from .validate import validate_capture
-
-        validate_capture(capture)
-    return capture

@@ -73,7 +73,8 @@ def prediction_path(path: str | Path) -> Path:
 
 def truth_capture(path: str | Path):
     """The capture behind ``--truth``, or None when it is a mesh file."""
-    from ..capture.format import FILENAME, load_capture
+    from ..capture.format import FILENAME
+    from ..capture.load import load_capture
 
     path = Path(path)
     if path.is_dir() or path.name == FILENAME:
@@ -96,7 +97,7 @@ def _truth_mesh_path(truth: Path, capture) -> Path:
 
 def _view_metrics(capture, renders: Path, views: str) -> dict:
     """PSNR/SSIM of the renders in ``renders`` against the truth capture's ``views`` set."""
-    from ..capture.format import load_capture
+    from ..capture.load import load_capture
     from ..capture.images import read_linear_rgb, read_mask
 
     require(capture is not None, None, "--renders needs a ground-truth capture",
@@ -162,7 +163,7 @@ def _run_view_metrics(report: dict, run: Path, capture, gt: Mesh, samples: int, 
     import json
 
     from .. import variant
-    from ..capture.format import load_capture
+    from ..capture.load import load_capture
     from ..capture.images import write_image
 
     variant.choose()

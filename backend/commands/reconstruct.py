@@ -184,7 +184,8 @@ def video_inputs(args):
 
 def video_capture(inputs, folder, resume: bool, emit):
     """RUN/capture written from the video inputs (kept when resuming), loaded."""
-    from ..capture.format import FILENAME, load_capture
+    from ..capture.format import FILENAME
+    from ..capture.load import load_capture
     from ..video.inputs import write_capture
 
     path = folder.path / "capture"
@@ -244,7 +245,7 @@ def _absolute(option: str, value: str) -> str:
 def run(args) -> int:
     import dataclasses
 
-    from ..capture.format import load_capture
+    from ..capture.load import load_capture
     from ..optimize.material import ConstantMaterial, parse_spec
     from ..optimize.run_folder import RunFolder
 

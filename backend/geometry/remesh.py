@@ -15,10 +15,16 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy import ndimage
+from scipy.spatial import cKDTree
 
 from ..capture.model import Camera
+from .init.hull import HullConfig, MaskView, grid_points, sample
+from .isosurface import marching_tetrahedra
 from .mesh import Mesh
 from .poisson import depth_for_resolution, poisson
+from .raycast import RayCaster, pixel_rays
+from .sampling import sample_surface
 from .simplify import edge_length_for_faces, simplify
 from .topology import keep_largest_components
 
@@ -32,7 +38,7 @@ class RemeshConfig:
 
 
 @dataclass
-class SurfaceSamples:
+class VisibleSamples:
     points: np.ndarray  # (N, 3)
     normals: np.ndarray  # (N, 3), outward
     rays: int  # rays cast
@@ -40,46 +46,20 @@ class SurfaceSamples:
     outside_masks: int  # hits dropped by the masks
 
 
-def pixel_rays(camera: Camera) -> tuple[np.ndarray, np.ndarray]:
-    """One ray per pixel centre: origins (N, 3) and unit directions (N, 3), rows top to bottom."""
-    v, u = np.mgrid[0:camera.height, 0:camera.width] + 0.5
-    d = np.stack([(u - camera.cx) / camera.fx, -(v - camera.cy) / camera.fy, -np.ones_like(u)], -1).reshape(-1, 3)
-    d = d @ camera.camera_to_world[:3, :3].T
-    d /= np.linalg.norm(d, axis=1, keepdims=True)
-    return np.broadcast_to(camera.centre, d.shape).copy(), d
-
-
-def first_hits(mesh: Mesh, origins: np.ndarray, directions: np.ndarray):
-    """Mitsuba ray casting: (hit mask, positions, geometric normals by winding)."""
-    import mitsuba as mi
-
-    from ..render.scene import mitsuba_mesh
-
-    scene = mi.load_dict({"type": "scene", "shape": mitsuba_mesh(mesh, mi.load_dict({"type": "diffuse"}))})
-    ray = mi.Ray3f(mi.Point3f(*[mi.Float(origins[:, i].astype(np.float32)) for i in range(3)]),
-                   mi.Vector3f(*[mi.Float(directions[:, i].astype(np.float32)) for i in range(3)]))
-    si = scene.ray_intersect(ray)
-    valid = np.array(si.is_valid(), bool)
-    p = np.stack([np.array(c) for c in (si.p.x, si.p.y, si.p.z)], -1).astype(np.float64)
-    n = np.stack([np.array(c) for c in (si.n.x, si.n.y, si.n.z)], -1).astype(np.float64)
-    return valid, p, n
-
-
 def outside_distance(mask: np.ndarray) -> np.ndarray:
     """Per pixel, the distance in pixels to the nearest object pixel (0 on the object)."""
-    from scipy import ndimage
-
     return ndimage.distance_transform_edt(mask <= 0.5)
 
 
-def sample_surface(mesh: Mesh, cameras: list[Camera], masks: list[np.ndarray] | None,
-                   config: RemeshConfig | None = None) -> SurfaceSamples:
+def visible_samples(mesh: Mesh, cameras: list[Camera], masks: list[np.ndarray] | None,
+                   config: RemeshConfig | None = None) -> VisibleSamples:
     """Oriented points on the visible, silhouette-consistent part of ``mesh``."""
     config = config or RemeshConfig()
     rays = [pixel_rays(c) for c in cameras]
     o = np.concatenate([r[0] for r in rays])
     d = np.concatenate([r[1] for r in rays])
-    valid, p, n = first_hits(mesh, o, d)
+    hits = RayCaster(mesh).intersect(o, d)
+    valid, p, n = hits.hit, hits.points, hits.normals
     front = np.einsum("ij,ij->i", n, d) < 0
     back_faces = int(np.sum(valid & ~front))
     keep = valid & front
@@ -98,17 +78,13 @@ def sample_surface(mesh: Mesh, cameras: list[Camera], masks: list[np.ndarray] | 
             ok &= ~far
         dropped = int(np.sum(~ok))
         p, n = p[ok], n[ok]
-    return SurfaceSamples(p, n, len(o), back_faces, dropped)
+    return VisibleSamples(p, n, len(o), back_faces, dropped)
 
 
 def signed_distance(mesh: Mesh, points: np.ndarray, samples: int = 200_000) -> np.ndarray:
     """Approximate signed distance (negative inside) of ``points`` to a closed mesh: the
     distance to the nearest of dense surface samples, signed by that sample's face normal."""
-    from scipy.spatial import cKDTree
-
-    from ..metrics.geometry import sample_surface as surface_points
-
-    s = surface_points(mesh, samples, seed=0)
+    s = sample_surface(mesh, samples, seed=0)
     normals = mesh.face_normals()[s.faces]
     d, i = cKDTree(s.points).query(points, workers=-1)
     side = np.einsum("ij,ij->i", points - s.points[i], normals[i])
@@ -120,9 +96,6 @@ def clip_to_masks(mesh: Mesh, cameras: list[Camera], masks: list[np.ndarray], sp
     """The part of a closed mesh that projects inside every mask (its intersection with the
     visual hull), meshed on a grid of about ``spacing``: what the silhouettes forbid (a
     membrane over a hole) is cut away, so the genus can grow."""
-    from .init.hull import HullConfig, MaskView, grid_points, sample
-    from .isosurface import marching_tetrahedra
-
     lo, hi = mesh.bounds()
     spacing = max(spacing, float((hi - lo).max()) / max_cells)
     lo, hi = lo - 3 * spacing, hi + 3 * spacing
@@ -134,7 +107,7 @@ def clip_to_masks(mesh: Mesh, cameras: list[Camera], masks: list[np.ndarray], sp
     return keep_largest_components(marching_tetrahedra(field, 0.5, lo, spacing), 0.02)
 
 
-def poisson_from_samples(samples: SurfaceSamples, mesh: Mesh, target_faces: int,
+def poisson_from_samples(samples: VisibleSamples, mesh: Mesh, target_faces: int,
                          config: RemeshConfig | None = None, cameras: list[Camera] | None = None,
                          masks: list[np.ndarray] | None = None) -> Mesh:
     """Screened Poisson surface of the samples at the resolution of ``target_faces`` faces
@@ -150,7 +123,8 @@ def poisson_from_samples(samples: SurfaceSamples, mesh: Mesh, target_faces: int,
 
 
 def remesh(mesh: Mesh, cameras: list[Camera], masks: list[np.ndarray] | None, target_faces: int,
-           config: RemeshConfig | None = None) -> tuple[Mesh, SurfaceSamples]:
+           config: RemeshConfig | None = None) -> tuple[Mesh, VisibleSamples]:
     """Rebuild ``mesh`` from its ray-cast samples; at most ``target_faces`` faces."""
-    samples = sample_surface(mesh, cameras, masks, config)
+    samples = visible_samples(mesh, cameras, masks, config)
     return poisson_from_samples(samples, mesh, target_faces, config, cameras, masks), samples
+

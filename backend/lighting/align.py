@@ -28,9 +28,10 @@ from ..capture.images import read_mask, read_rgba, srgb_to_linear
 from ..capture.model import Camera, CameraResponse, Capture
 from ..errors import require
 from ..geometry.mesh import Mesh
+from ..geometry.raycast import RayCaster, pixel_rays
 from .response import MAX_ERROR as MAX_BACKGROUND_ERROR
 from .response import BackgroundMatch, camera_response, match_background
-from .transport import Tracer, pixel_rays, transport_matrix
+from .transport import transport_matrix
 
 CLIPPED = 254.0 / 255.0  # encoded 8-bit values at or above this are clipped
 INTERIOR = 0.999  # share of a small pixel's source pixels that must be inside the mask and unclipped
@@ -220,15 +221,16 @@ def align_lighting(capture: Capture, mesh: Mesh, env_pixels: np.ndarray, config:
     Mitsuba variant chosen (``backend.variant.choose()``)."""
     config = config or AlignConfig()
     start = time.time()
-    tracer = Tracer(mesh)
+    caster = RayCaster(mesh)
     samples = frame_samples(capture, config)
     points, normals, views, targets = [], [], [], []
     for name, camera, rgb, usable, _ in samples:
         ys, xs = np.nonzero(usable)
-        origins, dirs = pixel_rays(camera, np.c_[xs, ys].astype(np.float64))
-        hit, p, n = tracer.first_hits(origins, dirs)
-        points.append(p[hit])
-        normals.append(n[hit])
+        origins, dirs = pixel_rays(camera, np.c_[xs, ys])
+        hits = caster.intersect(origins, dirs)
+        hit = hits.hit
+        points.append(hits.points[hit])
+        normals.append(hits.shading_towards(dirs)[hit])
         views.append(-dirs[hit])
         targets.append(rgb[ys[hit], xs[hit]])
     points, normals, views, targets = (np.concatenate(a) for a in (points, normals, views, targets))
@@ -237,7 +239,7 @@ def align_lighting(capture: Capture, mesh: Mesh, env_pixels: np.ndarray, config:
             "lighting with", "check the masks, or pass --no-align-lighting")
     env = reduce_environment(env_pixels, config.env_width)
     emit("progress", stage="lighting:transport", pixels=len(points), texels=env.shape[0] * env.shape[1])
-    matrices = transport_matrix(tracer, points, normals, env.shape[1], env.shape[0], config.seed, views,
+    matrices = transport_matrix(caster, points, normals, env.shape[1], env.shape[0], config.seed, views,
                                 config.gloss_alpha)
     loss = RotationLoss(list(matrices) if config.gloss_alpha > 0 else [matrices], env, targets)
 

@@ -15,7 +15,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..capture.model import CameraResponse
-from .transport import ALBEDO, pixel_rays
+from ..geometry.raycast import pixel_rays
+from .transport import ALBEDO
 
 MIN_PIXELS = 200
 MAX_ERROR = 0.25  # squared residual of the background fit relative to the background's energy
@@ -51,7 +52,7 @@ def match_background(samples, env: np.ndarray, rotation_z_deg: float) -> Backgro
         ys, xs = np.nonzero(background)
         if not len(xs):
             continue
-        _, dirs = pixel_rays(camera, np.c_[xs, ys].astype(np.float64))
+        _, dirs = pixel_rays(camera, np.c_[xs, ys])
         frame.append(rgb[ys, xs])
         sky.append(lookup(env, dirs, rotation_z_deg))
     if sum(len(f) for f in frame) < MIN_PIXELS:

@@ -18,8 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..capture.model import CV_TO_GL, Camera
-from ..geometry.mesh import Mesh
+from ..geometry.raycast import RayCaster
 
 ALBEDO = 0.5
 ROWS_PER_CHUNK = 512  # pixels whose shadow rays are traced together
@@ -38,49 +37,6 @@ def directions(u: np.ndarray, v: np.ndarray) -> np.ndarray:
     return np.stack([s * np.cos(phi), s * np.sin(phi), np.cos(theta)], -1)
 
 
-def pixel_rays(camera: Camera, pixels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """World origins and unit directions of rays through pixel centres ``pixels`` (N, 2) = (x, y)."""
-    d_cv = np.c_[(pixels[:, 0] + 0.5 - camera.cx) / camera.fx, (pixels[:, 1] + 0.5 - camera.cy) / camera.fy,
-                 np.ones(len(pixels))]
-    d = d_cv @ (camera.camera_to_world[:3, :3] @ CV_TO_GL[:3, :3]).T
-    d /= np.linalg.norm(d, axis=1, keepdims=True)
-    return np.broadcast_to(camera.centre, d.shape).copy(), d
-
-
-class Tracer:
-    """Ray casts against one mesh (Mitsuba; choose the variant first)."""
-
-    def __init__(self, mesh: Mesh):
-        import mitsuba as mi
-
-        from ..render.scene import mitsuba_mesh
-
-        self.mi = mi
-        shape = mitsuba_mesh(mesh, mi.load_dict({"type": "diffuse"}))
-        self.scene = mi.load_dict({"type": "scene", "object": shape})
-        lo, hi = mesh.bounds()
-        self.epsilon = 1e-4 * float(np.linalg.norm(hi - lo))
-
-    def _rays(self, origins: np.ndarray, dirs: np.ndarray):
-        mi = self.mi
-        o, d = np.asarray(origins, np.float32), np.asarray(dirs, np.float32)
-        return mi.Ray3f(mi.Point3f(o[:, 0], o[:, 1], o[:, 2]), mi.Vector3f(d[:, 0], d[:, 1], d[:, 2]))
-
-    def first_hits(self, origins: np.ndarray, dirs: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(hit, points, normals facing the ray's origin) of camera rays."""
-        si = self.scene.ray_intersect(self._rays(origins, dirs))
-        hit = np.array(si.is_valid(), bool)
-        points = np.array(si.p, np.float64).T
-        normals = np.array(si.sh_frame.n, np.float64).T
-        normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-12)
-        normals *= np.where((normals * dirs).sum(1) > 0, -1.0, 1.0)[:, None]
-        return hit, points, normals
-
-    def escapes(self, origins: np.ndarray, dirs: np.ndarray) -> np.ndarray:
-        """Whether rays leave the mesh without hitting it."""
-        return ~np.array(self.scene.ray_test(self._rays(origins, dirs)), bool)
-
-
 def _ggx(n: np.ndarray, v: np.ndarray, w: np.ndarray, alpha: float) -> np.ndarray:
     """D G / (4 n·v) of a GGX lobe (Smith G), for normals, view and light directions (M, 3)."""
     h = v + w
@@ -95,7 +51,7 @@ def _ggx(n: np.ndarray, v: np.ndarray, w: np.ndarray, alpha: float) -> np.ndarra
     return d * g1(cos_v) * g1(cos_w) / (4.0 * cos_v)
 
 
-def transport_matrix(tracer: Tracer, points: np.ndarray, normals: np.ndarray, width: int, height: int,
+def transport_matrix(caster: RayCaster, points: np.ndarray, normals: np.ndarray, width: int, height: int,
                      seed: int = 0, views: np.ndarray | None = None, alpha: float = 0.0) -> np.ndarray:
     """(N, height * width) float32: the diffuse (albedo ALBEDO) direct-light operator, or with
     ``views`` (unit vectors towards the camera, (N, 3)) and ``alpha`` > 0 a pair (diffuse,
@@ -113,7 +69,7 @@ def transport_matrix(tracer: Tracer, points: np.ndarray, normals: np.ndarray, wi
         d = directions((cols + jitter[..., 0]) / width, (rows + jitter[..., 1]) / height)
         cos = np.einsum("nk,ntk->nt", n, d)
         i, t = np.nonzero(cos > 0)
-        free = tracer.escapes(p[i] + tracer.epsilon * n[i], d[i, t])
+        free = caster.escapes(p[i] + caster.epsilon * n[i], d[i, t])
         i, t = i[free], t[free]
         out[s + i, t] = cos[i, t] * omega[t] * (ALBEDO / np.pi)
         if glossy:

@@ -11,19 +11,21 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from PIL import Image
+from scipy import sparse
 
 from ..capture.images import read_mask
 from ..capture.model import Camera, Capture
 from ..errors import InputError, require
 from ..geometry.mesh import Mesh
+from ..geometry.raycast import RayCaster
+from .meshcolors import unique_edges
 
 OBJECT_THRESHOLD = 0.5
 
 
 def read_label_image(path: str | Path) -> np.ndarray:
     """An 8-bit label PNG as an integer (H, W) array (grey, palette or equal-channel RGB)."""
-    from PIL import Image
-
     path = Path(path)
     require(path.is_file(), path, "material mask not found", "check the path in capture.json")
     try:
@@ -137,43 +139,19 @@ class FaceLabels:
         return len(self.material_ids)
 
 
-def visible_centroids(mesh: Mesh, camera: Camera) -> tuple[np.ndarray, np.ndarray]:
+def visible_centroids(mesh: Mesh, camera: Camera, caster: RayCaster | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Pixel coordinates (F, 2) of face centroids and whether each is seen by the camera
     (in front, inside the image, first hit along the ray from the camera centre)."""
-    import mitsuba as mi
-
-    scene = _ray_scene(mesh)
+    caster = caster or RayCaster(mesh)
     centroids = mesh.vertices[mesh.faces].mean(1)
     uv, depth = camera.project(centroids)
     inside = (depth > 0) & (uv[:, 0] >= 0) & (uv[:, 1] >= 0) & (uv[:, 0] < camera.width) & (uv[:, 1] < camera.height)
-    o = camera.centre
-    d = centroids - o
+    d = centroids - camera.centre
     dist = np.linalg.norm(d, axis=1)
     d = d / np.maximum(dist, 1e-30)[:, None]
-    ray = mi.Ray3f(mi.Point3f(*[np.full(len(d), x, np.float32) for x in o]),
-                   mi.Vector3f(*[d[:, i].astype(np.float32) for i in range(3)]))
-    si = scene.ray_intersect(ray)
-    prim = np.array(si.prim_index)
-    t = np.array(si.t)
-    hit = np.array(si.is_valid())
-    first = hit & ((prim == np.arange(mesh.n_faces)) | (t >= dist * (1 - 1e-4)))
+    hits = caster.intersect(camera.centre, d)
+    first = hits.hit & ((hits.face == np.arange(mesh.n_faces)) | (hits.distance >= dist * (1 - 1e-4)))
     return uv, inside & first
-
-
-_scene_cache: dict = {}
-
-
-def _ray_scene(mesh: Mesh):
-    import mitsuba as mi
-
-    from ..render.scene import mitsuba_mesh
-
-    key = (mesh.vertices.tobytes().__hash__(), mesh.faces.tobytes().__hash__())
-    if key not in _scene_cache:
-        _scene_cache.clear()
-        _scene_cache[key] = mi.load_dict({"type": "scene",
-                                          "object": mitsuba_mesh(mesh, mi.load_dict({"type": "diffuse"}))})
-    return _scene_cache[key]
 
 
 def vote_face_labels(mesh: Mesh, cameras: list[Camera], label_images: list[np.ndarray]) -> FaceLabels:
@@ -184,8 +162,9 @@ def vote_face_labels(mesh: Mesh, cameras: list[Camera], label_images: list[np.nd
     lut = np.full(max(ids) + 1, -1, np.int64)
     lut[ids] = np.arange(len(ids))
     counts = np.zeros((mesh.n_faces, len(ids)), np.int64)
+    caster = RayCaster(mesh)
     for cam, li in zip(cameras, label_images):
-        uv, seen = visible_centroids(mesh, _at_size(cam, li.shape[1], li.shape[0]))
+        uv, seen = visible_centroids(mesh, _at_size(cam, li.shape[1], li.shape[0]), caster)
         f = np.flatnonzero(seen)
         lab = li[uv[f, 1].astype(np.int64), uv[f, 0].astype(np.int64)]
         keep = lab > 0
@@ -210,10 +189,6 @@ def _at_size(camera: Camera, width: int, height: int) -> Camera:
 
 def _fill_unseen(mesh: Mesh, labels: np.ndarray, seen: np.ndarray) -> np.ndarray:
     """Give faces no view saw the most common label among their labelled edge neighbours."""
-    from scipy import sparse
-
-    from .meshcolors import unique_edges
-
     _, face_edges = unique_edges(mesh.faces)
     F = mesh.n_faces
     incidence = sparse.csr_matrix((np.ones(3 * F), (np.repeat(np.arange(F), 3), face_edges.ravel())))

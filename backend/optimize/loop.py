@@ -22,7 +22,7 @@ from ..errors import InputError
 from ..geometry.init import initial_mesh
 from ..geometry.mesh import Mesh, load_mesh, save_mesh
 from ..geometry.poisson import SurfaceReconstructionError
-from ..geometry.remesh import poisson_from_samples, sample_surface
+from ..geometry.remesh import poisson_from_samples, visible_samples
 from ..geometry.simplify import FaceBudget
 from ..geometry.subdivide import midpoint
 from ..geometry.topology import enclosed, inspect, mean_edge_length
@@ -459,7 +459,7 @@ class Reconstruction:
             self.progress.update(force=True, stage="remesh", level=self.level, faces=old.n_faces)
             cameras = [v.camera for v in self.viewset.views]
             masks = [v.mask for v in self.viewset.views] if self.capture.has_masks else None
-            samples = sample_surface(old, cameras, masks)
+            samples = visible_samples(old, cameras, masks)
             hits = len(samples.points) + samples.back_faces + samples.outside_masks
             share = (samples.back_faces + samples.outside_masks) / max(hits, 1)
             remeshed = None

@@ -18,6 +18,7 @@ from ..capture.images import read_rgba
 from ..capture.model import Camera, Environment, PointLight
 from ..capture.undistort import needs_resampling
 from ..geometry.mesh import Mesh
+from ..geometry.raycast import mitsuba_mesh  # noqa: F401  (re-exported: render.scene.mitsuba_mesh)
 from . import bsdf as _bsdf  # noqa: F401  (registers sft_surface)
 
 GL_TO_MITSUBA_CAMERA = np.diag([-1.0, 1.0, -1.0, 1.0])
@@ -97,21 +98,6 @@ def environment_dict(env: Environment, pixels: np.ndarray | None = None) -> dict
 def point_light_dict(light: PointLight) -> dict:
     return {"type": "point", "position": [float(x) for x in light.position],
             "intensity": {"type": "rgb", "value": [float(x) for x in light.intensity]}}
-
-
-def mitsuba_mesh(mesh: Mesh, bsdf, name: str = "object") -> mi.Mesh:
-    props = mi.Properties()
-    props["bsdf"] = bsdf
-    m = mi.Mesh(name, mesh.n_vertices, mesh.n_faces, props=props, has_vertex_normals=True)
-    params = mi.traverse(m)
-    params["vertex_positions"] = mi.Float(mesh.vertices.astype(np.float32).ravel())
-    params["faces"] = mi.UInt32(mesh.faces.astype(np.uint32).ravel())
-    params.update()
-    normals = mesh.shading_normals
-    if normals is not None:  # a display mesh's own (Phong) normals, not the recomputed ones
-        params["vertex_normals"] = mi.Float(np.asarray(normals, np.float32).ravel())
-        params.update()
-    return m
 
 
 class SceneRenderer:

@@ -364,7 +364,7 @@ def test_masks_and_material_labels_onto_imported_cameras(context, lights_capture
     in capture.json; the backend reads them back (masks, and labels as material masks)."""
     import shutil
 
-    from backend.capture.format import load_capture
+    from backend.capture.load import load_capture
 
     capture = tmp_path / "capture"
     shutil.copytree(lights_capture, capture)

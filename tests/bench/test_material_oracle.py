@@ -52,7 +52,7 @@ def test_plain_bench_scores_a_fit_against_truth_rendered_alike(tmp_path):
     three stages fitted on the true geometry, held-out and relit views scored against the
     truth rendered here at the scoring samples, the outputs written."""
     from backend.bench.material import MaterialBench, benchmark
-    from backend.capture.format import load_capture
+    from backend.capture.load import load_capture
     from backend.geometry.mesh import load_mesh, save_mesh
     from backend.synth.procedural import blob
 

@@ -53,7 +53,7 @@ def test_report_and_plot_are_written(swept):
 
 def test_result_renders_score_the_truth_higher_than_a_sphere(swept):
     """The scoring function itself: the true mesh scores far better than a wrong shape."""
-    from backend.capture.format import load_capture
+    from backend.capture.load import load_capture
     from backend.geometry.mesh import Mesh, save_mesh
     from backend.synth.procedural import icosphere
 

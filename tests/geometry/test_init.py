@@ -8,7 +8,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from backend.capture.format import load_capture, save_capture
+from backend.capture.format import save_capture
+from backend.capture.load import load_capture
 from backend.errors import InputError
 from backend.geometry.init import default_kind, initial_mesh
 from backend.geometry.init.carve import carve

@@ -14,9 +14,9 @@ from backend import variant
 variant.choose()
 
 from backend.bench._scenes import torus  # noqa: E402
-from backend.capture.format import load_capture  # noqa: E402
+from backend.capture.load import load_capture  # noqa: E402
 from backend.geometry.mesh import Mesh, load_mesh, save_mesh  # noqa: E402
-from backend.geometry.remesh import remesh, sample_surface  # noqa: E402
+from backend.geometry.remesh import remesh, visible_samples  # noqa: E402
 from backend.geometry.topology import genus, inspect  # noqa: E402
 from backend.optimize.views import ViewSet  # noqa: E402
 from backend.synth.procedural import icosphere  # noqa: E402
@@ -39,12 +39,12 @@ def test_ray_cast_samples_see_front_faces_only():
     from backend.synth.layout import fibonacci_sphere, orbit_cameras
 
     cams = orbit_cameras(fibonacci_sphere(4), np.zeros(3), 0.5, 24)
-    samples = sample_surface(sphere, cams, None)
+    samples = visible_samples(sphere, cams, None)
     assert len(samples.points) > 100 and samples.back_faces == 0
     assert np.allclose(np.linalg.norm(samples.points, axis=1), 0.5, atol=0.01)
     assert np.all(np.einsum("ij,ij->i", samples.normals, samples.points) > 0)  # outward
     inverted = Mesh(sphere.vertices, sphere.faces[:, ::-1])
-    flipped = sample_surface(inverted, cams, None)
+    flipped = visible_samples(inverted, cams, None)
     assert len(flipped.points) == 0 and flipped.back_faces > 100
 
 

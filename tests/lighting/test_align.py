@@ -20,7 +20,8 @@ from backend.geometry.init.carve import carve  # noqa: E402
 from backend.geometry.init.hull import HullConfig  # noqa: E402
 from backend.lighting.align import (AlignConfig, RotationLoss, align_lighting, reduce_environment,  # noqa: E402
                                     shift_columns)
-from backend.lighting.transport import Tracer, pixel_rays, transport_matrix  # noqa: E402
+from backend.geometry.raycast import RayCaster, pixel_rays  # noqa: E402
+from backend.lighting.transport import transport_matrix  # noqa: E402
 from tests.helpers import run_cli  # noqa: E402
 
 ROTATION, STRENGTH = 70.0, 2.0
@@ -72,12 +73,12 @@ def test_recovers_rotation_and_strength(scene):
 def test_rotation_gradient_matches_finite_differences(scene):
     capture, hull, env = scene
     small = reduce_environment(env, 32)
-    tracer = Tracer(hull)
+    caster = RayCaster(hull)
     cam = capture.frames[0].camera.scaled(0.5)
-    ys, xs = np.mgrid[0:cam.height, 0:cam.width]
-    origins, dirs = pixel_rays(cam, np.c_[xs.ravel(), ys.ravel()].astype(float))
-    hit, points, normals = tracer.first_hits(origins, dirs)
-    diffuse, glossy = transport_matrix(tracer, points[hit], normals[hit], small.shape[1], small.shape[0],
+    origins, dirs = pixel_rays(cam)
+    hits = caster.intersect(origins, dirs)
+    hit, points, normals = hits.hit, hits.points, hits.shading_towards(dirs)
+    diffuse, glossy = transport_matrix(caster, points[hit], normals[hit], small.shape[1], small.shape[0],
                                        views=-dirs[hit], alpha=0.15)
     rng = np.random.default_rng(1)
     truth = shift_columns(small, 40.0)[0].reshape(-1, 3)
@@ -103,11 +104,12 @@ def test_operator_matches_the_path_tracer(scene):
     small = reduce_environment(env, 64)
     renderer = SceneRenderer(hull, ConstantField(0.5, 0.0, 0.5), cams, [[], []], Environment(Path("env"), 1.0, ROTATION),
                              RenderSettings(spp=256, max_depth=2), env_pixels=env)
-    tracer = Tracer(hull)
+    caster = RayCaster(hull)
     for view, cam in enumerate(cams):
-        ys, xs = np.mgrid[0:cam.height, 0:cam.width]
-        hit, points, normals = tracer.first_hits(*pixel_rays(cam, np.c_[xs.ravel(), ys.ravel()].astype(float)))
-        matrix = transport_matrix(tracer, points[hit], normals[hit], small.shape[1], small.shape[0])
+        origins, dirs = pixel_rays(cam)
+        hits = caster.intersect(origins, dirs)
+        hit, points, normals = hits.hit, hits.points, hits.shading_towards(dirs)
+        matrix = transport_matrix(caster, points[hit], normals[hit], small.shape[1], small.shape[0])
         ours = matrix @ shift_columns(small, ROTATION)[0].reshape(-1, 3)
         reference = renderer.render_numpy(view).reshape(-1, 3)[hit]
         ratio = ours.sum(0) / reference.sum(0)

@@ -10,7 +10,7 @@ from backend import variant
 
 variant.choose()
 
-from backend.capture.format import load_capture  # noqa: E402
+from backend.capture.load import load_capture  # noqa: E402
 from backend.material.model import MeshColorMaterial  # noqa: E402
 from backend.optimize.appearance import Appearance, lit_environment  # noqa: E402
 from backend.optimize.config import ReconstructConfig  # noqa: E402

@@ -11,7 +11,7 @@ from backend.errors import InputError
 variant.choose()
 
 from backend.bench._scenes import render_capture  # noqa: E402
-from backend.capture.format import load_capture  # noqa: E402
+from backend.capture.load import load_capture  # noqa: E402
 from backend.capture.model import PointLight  # noqa: E402
 from backend.optimize.material import ConstantMaterial, parse_spec  # noqa: E402
 from backend.optimize.objective import Objective  # noqa: E402

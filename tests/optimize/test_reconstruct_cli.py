@@ -334,7 +334,7 @@ def test_a_level_whose_material_steps_diverge_goes_on_with_the_material_frozen(c
     from backend import variant
 
     variant.choose(None)
-    from backend.capture.format import load_capture
+    from backend.capture.load import load_capture
     from backend.optimize.loop import Reconstruction
     from backend.optimize.run_folder import RunFolder
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from backend.capture.format import load_capture
+from backend.capture.load import load_capture
 from backend.optimize.config import ReconstructConfig
 from backend.optimize.stiffness import SOFT, STIFF, TEXTURED, chroma_spread, choose
 from backend.optimize.views import ViewSet

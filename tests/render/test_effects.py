@@ -142,7 +142,7 @@ def test_unknown_effect_is_rejected():
 def test_diffuse_only_decision_holds_through_the_material_schedule(tmp_path):
     """A diffuse object: the staged schedule fits no specular lobe (the constant stage's fit is
     zeroed, the specular stage is skipped after the re-check on entering it)."""
-    from backend.capture.format import load_capture
+    from backend.capture.load import load_capture
     from backend.events import null_emitter
     from backend.geometry.mesh import load_mesh
     from backend.optimize.appearance import Appearance
@@ -199,7 +199,7 @@ def test_bench_targets_and_table():
 
 
 def _staged_appearance(tmp_path, *synth_args):
-    from backend.capture.format import load_capture
+    from backend.capture.load import load_capture
     from backend.events import null_emitter
     from backend.geometry.mesh import load_mesh
     from backend.optimize.appearance import Appearance

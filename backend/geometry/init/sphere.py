@@ -6,8 +6,8 @@ import numpy as np
 
 from ...capture.images import read_mask
 from ...capture.model import Capture
-from ...synth.procedural import icosphere
 from ..mesh import Mesh
+from ..primitives import icosphere
 from ..topology import clean
 from .hull import HullConfig, hull_box, mask_views
 
