@@ -276,15 +276,14 @@ def format_table(results: dict) -> str:
     return "\n".join(lines)
 
 
-def run(args) -> int:
+def run(args, spec) -> int:
+    """The table for ``spec`` (a ``material.MaterialBench``) over ``args.meshes``."""
     from dataclasses import fields
 
     from .. import fsio, variant
     from ..errors import InputError
-    from .material import MaterialBench
 
     variant.choose(args.variant)
-    spec = MaterialBench(**{f.name: getattr(args, f.name) for f in fields(MaterialBench)})
     names = [n.strip() for n in args.meshes.split(",") if n.strip()]
     unknown = [n for n in names if n not in MESHES]
     if unknown:

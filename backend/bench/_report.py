@@ -9,6 +9,7 @@ from pathlib import Path
 
 from .. import fsio
 from . import _pareto
+from ._machine import machine_line
 
 PRESET_NAMES = ("draft", "balanced", "final")
 BUDGETS_MIN = (1, 3, 10, 30)
@@ -211,8 +212,6 @@ def write(rows: list[dict], out: Path, scenes: dict, presets_path: Path | None =
           "PSNR score the result rendered with its estimated material at held-out cameras (relit: under a "
           "second environment alone).", ""]
     for m in machines.values():
-        from .sweep import machine_line
-
         md.append(f"- Machine: {machine_line(m)} (Mitsuba {m.get('mitsuba', '?')}, {m.get('memory_gib', '?')} GiB).")
     if loads:
         md.append(f"- 1-minute load average around the runs: {min(loads):.1f}–{max(loads):.1f} on "

@@ -84,7 +84,7 @@ def recommend(name: str, preset_row: dict, rows: list[dict], margin: float) -> d
 
 def calibration(rows: list[dict], machine: dict, scene_description: str, margin: float = 1.0) -> dict:
     """The calibration document from sweep rows of the dragon scene (presets named as in PRESETS)."""
-    from .sweep import machine_line
+    from ._machine import machine_line
 
     good = [r for r in rows if r.get("rc") == 0 and r.get("f1") is not None]
     presets = {}

@@ -21,6 +21,7 @@ import numpy as np
 
 from .. import fsio, variant
 from ..events import Emitter
+from . import _material_table
 from ._data import SHARED_DATA
 
 REPO = Path(__file__).resolve().parents[2]
@@ -71,19 +72,15 @@ def add_arguments(parser) -> None:
                             help=HELP.get(f.name, f.name.replace("_", " ")) + " (default: %(default)s)")
     parser.add_argument("--out", type=Path, default=REPO / "runs" / "bench-material")
     parser.add_argument("--variant", help="Mitsuba variant (default: automatic)")
-    from . import _material_table
-
     _material_table.add_arguments(parser)
 
 
 def run(args) -> int:
+    spec = MaterialBench(**{f.name: getattr(args, f.name) for f in fields(MaterialBench)})
     if args.table:
-        from . import _material_table
-
-        return _material_table.run(args)
+        return _material_table.run(args, spec)
     emit = Emitter()
     variant.choose(args.variant, emit)
-    spec = MaterialBench(**{f.name: getattr(args, f.name) for f in fields(MaterialBench)})
     report = benchmark(spec, Path(args.out), emit)
     emit("done", result="run/result.glb", report="run/report.json", metrics=report["metrics"])
     return 0

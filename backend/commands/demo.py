@@ -64,12 +64,12 @@ def run(args) -> int:
         print(f"[synth] reusing {capture}")
     _follow(["reconstruct", str(capture), "--out", str(run_dir), "--preset", "balanced",
              "--material", "constant", "--time-budget", str(args.minutes), "--overwrite"], "reconstruct")
-    from .. import fsio
-    from .evaluate import evaluate, json_safe, table
-
-    metrics = evaluate(run_dir, capture)
     report = out / "evaluation.json"
-    fsio.write_json(report, json_safe(metrics))
-    print(table(metrics))
+    proc = subprocess.run([sys.executable, "-m", "backend", "evaluate", str(run_dir), "--truth", str(capture),
+                           "--out", str(report)], capture_output=True, text=True)
+    if proc.returncode != 0:
+        sys.stderr.write(proc.stderr[-4000:])
+        raise SystemExit(proc.returncode)
+    print(proc.stdout.rstrip())
     print(f"result:  {run_dir / 'result.ply'}\nreport:  {run_dir / 'report.json'}\nmetrics: {report}")
     return 0

@@ -1,0 +1,111 @@
+"""Backend layering, read from the source (ast): no import cycle between modules, no command
+importing another command, ``geometry`` free of ``render`` and ``synth``."""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+BACKEND = Path(__file__).resolve().parents[2] / "backend"
+KNOWN_CYCLES: set[frozenset[str]] = set()  # none: add one here only with the reason it must stay
+
+
+def module_name(path: Path) -> str:
+    parts = list(path.relative_to(BACKEND.parent).with_suffix("").parts)
+    if parts[-1] == "__init__":
+        parts.pop()
+    return ".".join(parts)
+
+
+def modules() -> dict[str, Path]:
+    return {module_name(p): p for p in BACKEND.rglob("*.py") if "__pycache__" not in p.parts}
+
+
+def _resolve(name: str, known: dict[str, Path]) -> str | None:
+    """The longest known module that ``name`` (a module or a module's attribute) lies in."""
+    while name and name not in known:
+        name = name.rpartition(".")[0]
+    return name or None
+
+
+def imports(name: str, path: Path, known: dict[str, Path]) -> set[str]:
+    """Backend modules that ``name`` imports anywhere in its body (functions included)."""
+    package = name if path.name == "__init__.py" else name.rpartition(".")[0]
+    out = set()
+    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+        if isinstance(node, ast.Import):
+            targets = [a.name for a in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            base = node.module or ""
+            if node.level:
+                anchor = package.split(".")
+                anchor = anchor[:len(anchor) - node.level + 1]
+                base = ".".join(anchor + ([base] if base else []))
+            targets = [f"{base}.{a.name}" for a in node.names] + [base]
+        else:
+            continue
+        for t in targets:
+            hit = _resolve(t, known)
+            # `from pkg import name` imports the package too; a submodule only when named
+            if hit and hit != name and hit.startswith("backend"):
+                out.add(hit)
+    return out
+
+
+def graph() -> dict[str, set[str]]:
+    known = modules()
+    return {m: imports(m, p, known) for m, p in known.items()}
+
+
+def cycles(g: dict[str, set[str]]) -> list[list[str]]:
+    """Strongly connected components with more than one module (Tarjan)."""
+    index, low, stack, on, out = {}, {}, [], set(), []
+
+    def visit(v):
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        on.add(v)
+        for w in g.get(v, ()):
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            comp = []
+            while True:
+                w = stack.pop()
+                on.discard(w)
+                comp.append(w)
+                if w == v:
+                    break
+            if len(comp) > 1:
+                out.append(sorted(comp))
+
+    for v in sorted(g):
+        if v not in index:
+            visit(v)
+    return out
+
+
+def _package_edge(a: str, b: str) -> bool:
+    """A package's ``__init__`` re-exporting its own submodules is not a cycle of concern."""
+    return b.startswith(a + ".")
+
+
+def test_no_import_cycles():
+    g = {m: {t for t in ts if not _package_edge(m, t)} for m, ts in graph().items()}
+    found = [c for c in cycles(g) if frozenset(c) not in KNOWN_CYCLES]
+    assert not found, f"import cycles: {found}"
+
+
+def test_commands_do_not_import_commands():
+    bad = [(m, t) for m, ts in graph().items() if m.startswith("backend.commands.")
+           for t in ts if t.startswith("backend.commands.")]
+    assert not bad, f"commands importing commands: {bad}"
+
+
+def test_geometry_does_not_import_render_or_synth():
+    bad = [(m, t) for m, ts in graph().items() if m.startswith("backend.geometry")
+           for t in ts if t.startswith(("backend.render", "backend.synth"))]
+    assert not bad, f"geometry importing render/synth: {bad}"
