@@ -1,21 +1,45 @@
-"""``bench``: run a benchmark from the registry in backend/bench/ (one module per benchmark)."""
+"""``bench``: run a benchmark from the registry in backend/bench/ (one module per benchmark).
+
+The benchmarks ship with the source repository only (the extension zip leaves
+``backend/bench`` out), so without them the command answers with one line."""
 
 from __future__ import annotations
 
-from .. import bench
+import argparse
+from importlib.util import find_spec
+
+from ..errors import InputError
+
+MISSING = ("benchmarks ship with the source repository, not with the Blender extension",
+           "clone the repository and run python -m backend bench there")
+
+
+def _registry():
+    """``backend.bench``, or None where it is not installed (the extension zip)."""
+    if find_spec(f"{__package__.rpartition('.')[0]}.bench") is None:
+        return None
+    from .. import bench  # here: the package may be absent (the extension ships without it)
+
+    return bench
 
 
 def add_arguments(parser):
+    bench = _registry()
+    parser.set_defaults(bench_parser=parser)
+    if bench is None:
+        parser.add_argument("rest", nargs=argparse.REMAINDER, help=argparse.SUPPRESS)
+        return
     sub = parser.add_subparsers(dest="bench", metavar="NAME")
     for name in bench.names():
         module = bench.load(name)
         p = sub.add_parser(name, help=bench.describe(name), description=module.__doc__)
         module.add_arguments(p)
         p.set_defaults(bench_run=module.run)
-    parser.set_defaults(bench_parser=parser)
 
 
 def run(args) -> int:
+    if _registry() is None:
+        raise InputError(None, *MISSING)
     if not getattr(args, "bench_run", None):
         args.bench_parser.print_help()
         return 0
