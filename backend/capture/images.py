@@ -7,9 +7,11 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+import OpenEXR
+from PIL import Image
 
-from ..errors import InputError
 from .. import fsio
+from ..errors import InputError
 
 LINEAR_SUFFIXES = {".exr", ".hdr"}
 
@@ -24,35 +26,27 @@ def linear_to_srgb(x: np.ndarray) -> np.ndarray:
     return np.where(x <= 0.0031308, x * 12.92, 1.055 * np.power(x, 1 / 2.4) - 0.055).astype(np.float32)
 
 
-def _read_exr(path: Path) -> np.ndarray:
-    import OpenEXR
+def _read_linear(path: Path) -> np.ndarray:
+    """An EXR or Radiance HDR file through Mitsuba's Bitmap: RGB(A), grey expanded to RGB."""
+    import mitsuba as mi  # here: reading PNG/JPEG frames and masks needs no Mitsuba
 
+    kind = "EXR" if path.suffix.lower() == ".exr" else "Radiance HDR"
     try:
-        with OpenEXR.File(str(path)) as f:
-            channels = f.channels()
-            if "RGB" in channels:
-                rgb = np.asarray(channels["RGB"].pixels, dtype=np.float32)
-            elif "RGBA" in channels:
-                rgb = np.asarray(channels["RGBA"].pixels, dtype=np.float32)
-            elif all(c in channels for c in "RGB"):
-                rgb = np.stack([np.asarray(channels[c].pixels, dtype=np.float32) for c in "RGB"], -1)
-            elif "Y" in channels:
-                y = np.asarray(channels["Y"].pixels, dtype=np.float32)
-                rgb = np.repeat(y[..., None], 3, -1)
-            else:
-                raise InputError(path, f"EXR has channels {sorted(channels)} but no R, G, B or Y",
-                                 "save the image with RGB channels")
-    except InputError:
-        raise
+        bitmap = mi.Bitmap(str(path))
     except Exception as err:
-        raise InputError(path, f"cannot read EXR ({err})", "re-export the file as OpenEXR") from err
-    return rgb
-
-
-def _read_hdr(path: Path) -> np.ndarray:
-    from .rgbe import read_rgbe
-
-    return read_rgbe(path)
+        raise InputError(path, f"cannot read {kind} ({err})".replace("\n", " "),
+                         "re-export the file as OpenEXR or .hdr") from err
+    fmt = bitmap.pixel_format()
+    if fmt not in (mi.Bitmap.PixelFormat.RGB, mi.Bitmap.PixelFormat.RGBA, mi.Bitmap.PixelFormat.Y,
+                   mi.Bitmap.PixelFormat.YA):
+        raise InputError(path, f"{kind} has channels {[c.name for c in bitmap.struct_()]} but no R, G, B or Y",
+                         "save the image with RGB channels")
+    arr = np.array(bitmap.convert(component_format=mi.Struct.Type.Float32), dtype=np.float32)
+    if arr.ndim == 2:
+        arr = arr[..., None]
+    if fmt in (mi.Bitmap.PixelFormat.Y, mi.Bitmap.PixelFormat.YA):
+        arr = np.concatenate([np.repeat(arr[..., :1], 3, -1), arr[..., 1:]], -1)
+    return np.ascontiguousarray(arr)
 
 
 def read_rgba(path: str | Path) -> tuple[np.ndarray, bool]:
@@ -61,12 +55,8 @@ def read_rgba(path: str | Path) -> tuple[np.ndarray, bool]:
     if not path.is_file():
         raise InputError(path, "image file not found", "check the path or re-export the frames")
     suffix = path.suffix.lower()
-    if suffix == ".exr":
-        return _read_exr(path), True
-    if suffix == ".hdr":
-        return _read_hdr(path), True
-    from PIL import Image
-
+    if suffix in LINEAR_SUFFIXES:
+        return _read_linear(path), True
     try:
         with Image.open(path) as im:
             im.load()
@@ -111,8 +101,6 @@ def image_size(path: str | Path) -> tuple[int, int]:
     if path.suffix.lower() in LINEAR_SUFFIXES:
         arr, _ = read_rgba(path)
         return arr.shape[1], arr.shape[0]
-    from PIL import Image
-
     try:
         with Image.open(path) as im:
             return im.size
@@ -130,8 +118,6 @@ def write_image(path: str | Path, image: np.ndarray) -> None:
     suffix = path.suffix.lower()
     with fsio.atomic_path(path) as tmp:
         if suffix == ".exr":
-            import OpenEXR
-
             if image.shape[-1] == 1:
                 image = np.repeat(image, 3, -1)
             name = "RGBA" if image.shape[-1] == 4 else "RGB"
@@ -139,8 +125,6 @@ def write_image(path: str | Path, image: np.ndarray) -> None:
             with OpenEXR.File(header, {name: np.ascontiguousarray(image)}) as f:
                 f.write(str(tmp))
         else:
-            from PIL import Image
-
             enc = linear_to_srgb(image[..., :3])
             if image.shape[-1] == 4:
                 enc = np.concatenate([enc, np.clip(image[..., 3:], 0, 1)], -1)
@@ -152,8 +136,6 @@ def write_image(path: str | Path, image: np.ndarray) -> None:
 
 def write_mask(path: str | Path, mask: np.ndarray) -> None:
     """Write a [0, 1] mask as an 8-bit greyscale PNG (no sRGB curve). Atomic."""
-    from PIL import Image
-
     data = np.round(np.clip(mask, 0, 1) * 255).astype(np.uint8)
     with fsio.atomic_path(path) as tmp:
         Image.fromarray(data).save(tmp, format="PNG")

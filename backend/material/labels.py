@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 from PIL import Image
 from scipy import sparse
+from scipy.cluster.vq import kmeans2
 
 from ..capture.images import read_mask
 from ..capture.model import Camera, Capture
@@ -105,13 +106,7 @@ def cluster_labels(images: list[np.ndarray], object_masks: list[np.ndarray], k: 
     allf = np.concatenate(feats)
     rng = np.random.default_rng(seed)
     sub = allf[rng.choice(len(allf), min(len(allf), max_pixels), replace=False)]
-    centres = sub[[rng.integers(len(sub))]]
-    for _ in range(1, k):  # k-means++
-        d = ((sub[:, None] - centres[None]) ** 2).sum(-1).min(1)
-        centres = np.vstack([centres, sub[rng.choice(len(sub), p=d / d.sum()) if d.sum() > 0 else 0]])
-    for _ in range(iterations):
-        assign = ((sub[:, None] - centres[None]) ** 2).sum(-1).argmin(1)
-        centres = np.array([sub[assign == c].mean(0) if np.any(assign == c) else centres[c] for c in range(k)])
+    centres, _ = kmeans2(sub, k, iter=iterations, minit="++", missing="warn", seed=rng)
     order = np.argsort(np.argsort(centres[:, 2]))  # label 1 = darkest
     out = []
     for f, obj in zip(feats, where):

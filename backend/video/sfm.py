@@ -12,14 +12,10 @@ silhouettes' epipolar tangencies (``silhouettes``). Poses are world-to-camera in
 intrinsics in the input frames' pixels (COLMAP's corner-origin convention, like ours).
 
 The principal point is held at the frame centre: a narrow lens cannot observe it (it trades
-with the cameras' rotations; freeing it in the final adjustment sends it 200 px off on the
-Middlebury dino and the ring with it). The dino's ring (16 views, 11-degree field of view,
-tracks of 2.7 views on average) leaves a flat valley in the reprojection error: bundle
-adjustment of its matches with the calibrated intrinsics held stays within 0.7 % of the
-ring radius when started from the calibrated poses, and 3.5 % off at the weakest link when
-started from ours, at the same mean error (0.99 feature pixels). So known intrinsics and
-further rounds of re-triangulation and adjustment (both measured) leave its shape as it is;
-the masks' silhouettes pin it (``silhouettes``: 3.3 -> 0.9 %)."""
+with the cameras' rotations). A ring of few views with short tracks leaves a flat valley in
+the reprojection error that known intrinsics and further adjustment rounds do not remove;
+the masks' silhouettes pin it (``silhouettes``). Longer than 400 lines: the SfM steps share
+one options record and pycolmap's state, and read best in one place."""
 
 from __future__ import annotations
 
@@ -49,12 +45,11 @@ class SfmOptions:
     min_feature_size: int = 1024  # feature images' longer side is at least this (upscaled)...
     max_feature_size: int = 2048  # ...and at most this (downscaled)
     # SIFT keeps the strongest this many per frame: CPU matching time grows with its square
-    # (instant-ngp fox, 1080x1920: 8192 spent 39 of 47 min matching 720 pairs)
     max_features: int = 4096
     peak_threshold: float = 0.002  # SIFT contrast threshold on the stretched grey image
     max_ratio: float = 0.85  # Lowe's ratio test (COLMAP's 0.8 loses the few matches wide baselines give)
-    # match all pairs up to this many frames, else a cyclic window: 40 frames of a 640x360 orbit
-    # are 780 pairs exhaustively, 440 windowed (matching is most of the SfM time on a CPU)
+    # match all pairs up to this many frames, else a cyclic window (matching is most of the
+    # SfM time on a CPU)
     exhaustive_up_to: int = 24
     window: int = 10  # neighbours each frame is matched with when not exhaustive
     min_registered_share: float = 0.3  # fewer registered frames than this share is a failure

@@ -41,8 +41,7 @@ class SilhouetteOptions:
     weight: float = 1.0  # tangency residuals (pixels) against reprojection residuals (pixels)
     robust_px: float = 1.0  # soft-L1 scale of both kinds of residual
     # pairs whose silhouettes' planes spread wider are left out (the other camera is seen near
-    # or inside the silhouette; a synthetic ring of 12 around an ellipsoid filling half the
-    # frame: 60 degrees kept 50 of 66 pairs and joined two halves to 1.06 %, 120 kept 60, 0.26 %)
+    # or inside the silhouette)
     max_spread_deg: float = 120.0
     # pairs: frames this many evenly spaced steps apart in capture order (all pairs up to
     # max_partners + 1 frames), so that the residuals grow with the frames, not their square
