@@ -14,6 +14,7 @@ runs shrink a run with it without changing the command line."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import os
@@ -243,10 +244,9 @@ def _absolute(option: str, value: str) -> str:
 
 
 def run(args) -> int:
-    import dataclasses
-
+    # Mitsuba loads (and its variant is chosen) only once a run starts, not for --help
     from ..capture.load import load_capture
-    from ..optimize.material import ConstantMaterial, parse_spec
+    from ..material.constant import parse_spec
     from ..optimize.run_folder import RunFolder
 
     if args.resume and args.material is None:
@@ -261,6 +261,7 @@ def run(args) -> int:
         require_light(SimpleNamespace(environment=None, has_point_lights=False), args.capture)
     chosen = variant.choose(args.variant)
     from ..optimize.appearance import Appearance
+    from ..optimize.run import reconstruct, reported
 
     if capture is not None:
         Appearance.check(capture, config)
@@ -269,34 +270,27 @@ def run(args) -> int:
         folder.record_command(absolute_paths(args.argv, args))
     emit = Emitter(log_path=folder.events)
     try:
-        emit("start", run=str(folder.path), capture=str(args.capture), settings=dataclasses.asdict(config))
-        emit("variant", variant=chosen, llvm=os.environ.get("DRJIT_LIBLLVM_PATH"))
-        preset = choose_preset(args)
-        expected = calibrated().get(preset, {})
-        # the calibration scene is point-lit: its time is no promise for an HDR-lit capture,
-        # whose steps can cost several times more (the ETA of the progress events is measured)
-        comparable = capture is not None and capture.environment is None
-        emit("preset", preset=preset, chosen_for_budget=args.preset is None and args.time_budget is not None,
-             expected_minutes=expected.get("expected_minutes") if comparable else None,
-             expected_f1=expected.get("expected_f1") if comparable else None,
-             calibrated_on=load_calibration().get("scene"),
-             note=None if comparable else "calibrated on a point-lit scene; this capture is lit by an "
-                                          "environment map: the time comes from its own measured steps (eta_s)")
-        if video is not None:
-            capture = video_capture(video, folder, args.resume, emit)
-            Appearance.check(capture, config)
-        from ..optimize.loop import Reconstruction
-
-        material = None if args.resume else ConstantMaterial.from_spec(config.material)
-        return Reconstruction(capture, folder, config, emit, material=material, resume=args.resume).run()
-    except InputError as err:
-        emit("error", message=err.line())
-        raise
-    except KeyboardInterrupt:
-        emit("cancelled", snapshot=None)
-        raise
-    except Exception as err:
-        emit("error", message=f"{type(err).__name__}: {err}")
-        raise
+        with reported(emit):
+            emit("start", run=str(folder.path), capture=str(args.capture), settings=dataclasses.asdict(config))
+            emit("variant", variant=chosen, llvm=os.environ.get("DRJIT_LIBLLVM_PATH"))
+            _preset_event(args, capture, emit)
+            if video is not None:
+                capture = video_capture(video, folder, args.resume, emit)
+                Appearance.check(capture, config)
+            return reconstruct(capture, folder, config, emit, resume=args.resume).exit_code
     finally:
         emit.close()
+
+
+def _preset_event(args, capture, emit) -> None:
+    preset = choose_preset(args)
+    expected = calibrated().get(preset, {})
+    # the calibration scene is point-lit: its time is no promise for an HDR-lit capture,
+    # whose steps can cost several times more (the ETA of the progress events is measured)
+    comparable = capture is not None and capture.environment is None
+    emit("preset", preset=preset, chosen_for_budget=args.preset is None and args.time_budget is not None,
+         expected_minutes=expected.get("expected_minutes") if comparable else None,
+         expected_f1=expected.get("expected_f1") if comparable else None,
+         calibrated_on=load_calibration().get("scene"),
+         note=None if comparable else "calibrated on a point-lit scene; this capture is lit by an "
+                                      "environment map: the time comes from its own measured steps (eta_s)")

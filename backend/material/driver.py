@@ -6,6 +6,7 @@
     driver.cycle(renderer, images, masks, material, emit)    # one stage of the schedule
     driver.on_remesh(mesh, material, cameras)                # after a re-mesh (labels re-voted)
     driver.finalise()                                        # geometry converged: last, longer stages
+    driver.refine() / driver.skip_rest()                     # the schedule's other moves
     driver.settle(renderer, images, masks, material)         # the end: keep the specular texture?
     driver.state() / driver.restore(state, images, masks)   # the schedule's position, for --resume
 
@@ -21,9 +22,11 @@ import numpy as np
 
 from ..capture.model import Camera, Capture
 from ..geometry.mesh import Mesh
+from .factory import create
 from .labels import FaceLabels, face_labels, load_material_labels
 from .model import MeshColorMaterial
-from .stages import FitResult, FitSettings, MaterialSchedule, check_specular_texture, check_views, fit_lobe, run_cycle
+from .schedule import MaterialSchedule, run_cycle
+from .stages import FitResult, FitSettings, check_specular_texture, check_views, fit_lobe
 
 
 @dataclass
@@ -34,14 +37,11 @@ class MaterialDriver:
     settings: FitSettings = field(default_factory=FitSettings)
     schedule: MaterialSchedule = field(default_factory=MaterialSchedule)
     # shares of a run's time budget the geometry levels leave to the final material stages and
-    # polish rounds, and the polish rounds leave to what follows them. Armadillo, 10 min:
-    # a 0.25 reserve left no time to polish (Chamfer 0.00222, 27.83 dB, relit 27.58); 0.4 left
-    # one round at 17.5k faces (Chamfer 0.00141, 28.26 dB, relit 28.59, albedo RMSE 0.0526 -> 0.0506)
+    # polish rounds (enough for one polish round), and the polish rounds leave to what follows them
     reserve: float = 0.4
     polish_reserve: float = 0.05
     # once a material cycle on the final mesh has been timed, polish rounds leave this many of
-    # its length instead: the refinement cycle (1.13x in a dragon run), the specular check and
-    # the outputs (0.4x). At 1.25x that dragon run ended 9 s past its 20 minutes
+    # its length instead: the refinement cycle, the specular check and the outputs
     polish_reserve_cycles: float = 1.75
     labels: FaceLabels | None = None
     results: list[FitResult] = field(default_factory=list)
@@ -55,12 +55,33 @@ class MaterialDriver:
     def done(self) -> bool:
         return self.schedule.stage == "done"
 
+    @property
+    def stage(self) -> str:
+        """The stage the next cycle runs (MaterialSchedule.STAGES)."""
+        return self.schedule.stage
+
+    def skip_rest(self) -> None:
+        """End the schedule now (a diffuse-only scene has no specular lobe to texture)."""
+        self.schedule.stage = "done"
+
+    def refine(self, last: str = "specular") -> None:
+        """The surface moved under the finished material: its last stage runs again."""
+        self.schedule.refine(last)
+
+    def polish_share(self, last_cycle_seconds: float | None, budget_s: float | None) -> float:
+        """The share of a time budget polish rounds leave to what follows them: one material
+        cycle, the specular check and the outputs, in units of ``last_cycle_seconds`` (the
+        last cycle on the final mesh), or ``polish_reserve`` before one has been timed."""
+        if not (budget_s and last_cycle_seconds is not None):
+            return self.polish_reserve
+        return self.polish_reserve_cycles * last_cycle_seconds / budget_s
+
     def material(self, mesh: Mesh, cameras: list[Camera], images: list[np.ndarray],
                  masks: list[np.ndarray] | None) -> MeshColorMaterial:
         """A neutral grey material on ``mesh`` with per-face labels from the masks (or colours)."""
         self._images, self._masks = images, masks
         self.labels = face_labels(mesh, cameras, self.label_images, images, masks, self.n_materials)
-        return MeshColorMaterial(mesh, self.resolution, self.labels.labels, self.labels.n_materials)
+        return create("staged", mesh, self.resolution, self.labels.labels, self.labels.n_materials)
 
     def relabel(self, mesh: Mesh, material: MeshColorMaterial, cameras: list[Camera]) -> None:
         """Vote the labels again on the current geometry (when several materials exist)."""

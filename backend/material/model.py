@@ -24,12 +24,10 @@ import numpy as np
 
 from .. import fsio
 from ..geometry.mesh import NORMAL_ATTRIBUTES, Mesh
+from .base import NEUTRAL, Material
 from .field import MeshColorsField, squash_np, unsquash_np
 from .meshcolors import MeshColorLayout, local_sub_triangles
 from .transfer import locate, project_onto_faces
-
-NEUTRAL = {"albedo": 0.5, "specular": 0.1, "roughness": 0.5}
-
 
 @dataclass
 class Channel:
@@ -40,10 +38,10 @@ class Channel:
     latent: mi.Float  # flat: (n_materials or n_samples) x width logits
 
 
-class MeshColorMaterial:
+class MeshColorMaterial(Material):
     """Diffuse albedo + GGX specular and roughness on a mesh, as constants or mesh colors."""
 
-    CHANNELS = {"albedo": (3, 0.0, 1.0), "specular": (1, 0.0, 1.0), "roughness": (1, 0.0, 1.0)}
+    KIND = "meshcolors"
 
     def __init__(self, mesh: Mesh, resolution: int = 4, labels: np.ndarray | None = None,
                  n_materials: int | None = None, halve_resolution_on_subdivide: bool = True):
@@ -113,6 +111,11 @@ class MeshColorMaterial:
         """Neutral grey constants for every material (the restart after a re-mesh)."""
         for name in self.CHANNELS:
             self.set_values(name, self._neutral(name), "constant")
+
+    def restart_specular(self) -> None:
+        for name in ("specular", "roughness"):
+            self.set_values(name, NEUTRAL[name], "constant")
+        self.trainable = (*self.trainable, "specular")
 
     def make_spatial(self, name: str) -> None:
         """Turn a constant channel into mesh colors initialised from the per-material constants."""
@@ -290,7 +293,7 @@ class MeshColorMaterial:
     # -- persistence ------------------------------------------------------------------------------
     def save(self, path: str | Path) -> None:
         """Write the material state (npz, atomic) for --resume."""
-        arrays = {"faces": self.layout.faces, "vertices": self.vertices, "labels": self.labels,
+        arrays = {"kind": np.array(self.KIND), "faces": self.layout.faces, "vertices": self.vertices, "labels": self.labels,
                   "resolution": np.array(self.resolution), "n_materials": np.array(self.n_materials),
                   "light_factor": np.array(self.light_factor)}
         for name, ch in self.channels.items():

@@ -18,10 +18,12 @@ import time
 import numpy as np
 
 from ..capture.model import Capture
-from ..material.model import NEUTRAL
+from ..errors import InputError
+from ..material import factory
+from ..material.driver import MaterialDriver
+from ..material.export import write_glb
 from ..render import effects
 from ..render.scene import RenderSettings, SceneRenderer
-from .material import START
 
 
 def _emitters(capture: Capture) -> list[str]:
@@ -45,22 +47,39 @@ class Appearance:
         try:
             measure, overrides = effects.parse_effects(config.effects)
         except ValueError as err:
-            from ..errors import InputError
-
             raise InputError(None, str(err), "write --effects auto, all, or a list such as indirect,-shadows") from None
         driver = None
-        if config.material == "staged":
-            from ..material.driver import MaterialDriver
-
+        if factory.kind_for(config.material) == "meshcolors":
             driver = MaterialDriver(capture)  # raises InputError naming the frame of a bad mask
         return measure, overrides, driver
 
     # -- materials ---------------------------------------------------------------------------------
-    def initial_material(self, mesh, views):
-        """The staged material on the initial mesh, or None to keep the loop's own."""
-        if self.driver is None:
-            return None
-        return self.driver.material(mesh, [v.camera for v in views], [v.target for v in views], self._masks(views))
+    def initial_material(self, mesh, views, given=None):
+        """The material of a new run: the staged material on the initial mesh (labels voted
+        on ``views``); else ``given`` (a model built by the caller) or the one --material names."""
+        if self.driver is not None:
+            return self.driver.material(mesh, [v.camera for v in views], [v.target for v in views],
+                                        self._masks(views))
+        return given if given is not None else factory.create(self.config.material)
+
+    def load_material(self, path, folder=None):
+        """The saved material of a resumed run, of the model this run's --material asks for."""
+        return factory.load(path, factory.kind_for(self.config.material), folder)
+
+    # -- the schedule's share of a time budget --------------------------------------------------
+    def geometry_reserve(self) -> float:
+        """The share of a time budget the geometry levels leave to the material stages that
+        run to convergence on the final geometry (staged materials only)."""
+        return self.driver.reserve if self.driver is not None else 0.0
+
+    def polish_reserve(self, last_cycle_seconds: float | None, budget_s: float | None) -> float:
+        """The share polish rounds leave to what follows them (MaterialDriver.polish_share)."""
+        return 0.0 if self.driver is None else self.driver.polish_share(last_cycle_seconds, budget_s)
+
+    @property
+    def staged(self) -> bool:
+        """Whether a material schedule runs (and polish rounds with it)."""
+        return self.driver is not None
 
     def _masks(self, views):
         return [v.mask for v in views] if all(v.mask is not None for v in views) else None
@@ -69,19 +88,19 @@ class Appearance:
         """One stage of the material schedule on the current geometry."""
         if self.driver is None or self.driver.done:
             return None
-        if self.driver.schedule.stage == "specular" and self.decision is not None and not self.decision.specular:
+        if self.driver.stage == "specular" and self.decision is not None and not self.decision.specular:
             # diffuse-only, re-checked on entering the stage: no specular lobe to texture
-            self.driver.schedule.stage = "done"
+            self.driver.skip_rest()
             return None
         start = time.perf_counter()
-        stage_before = self.driver.schedule.stage
+        stage_before = self.driver.stage
         self.emit("stage", stage=f"material:{stage_before}", level=level, faces=mesh.n_faces)
         renderer = self._renderer(mesh, material, views, geometry=False)
         result = self.driver.cycle(renderer, [v.target for v in views], self._masks(views), material, self.emit)
         if self.decision is not None and not self.decision.specular:
-            _disable_specular(material)  # the constant stage fits every channel: keep the diffuse-only model
+            material.disable("specular")  # the constant stage fits every channel: keep the diffuse-only model
         self.seconds += time.perf_counter() - start
-        if self.driver.schedule.stage != stage_before and self.driver.schedule.stage == "specular":
+        if self.driver.stage != stage_before and self.driver.stage == "specular":
             self.decide(mesh, material, views, reason="materials became spatially varying")
         return {"stage": stage_before, "loss": result.loss, "seconds": round(time.perf_counter() - start, 3)}
 
@@ -97,7 +116,7 @@ class Appearance:
     def refine_material(self) -> None:
         """The surface moved under the finished material: its last stage runs again."""
         if self.driver is not None:
-            self.driver.schedule.refine(self._last_stage())
+            self.driver.refine(self._last_stage())
 
     def settle(self, mesh, material, views, level: int) -> None:
         """The run's end: a specular texture that the views left out of its fit do not support
@@ -127,8 +146,6 @@ class Appearance:
     def finish(self, folder, mesh, material) -> dict:
         out = {"effects": self.history, "appearance_seconds": round(self.seconds, 3)}
         if self.driver is not None:
-            from ..material.export import write_glb
-
             write_glb(folder / "result.glb", mesh, material)
             out["material_schedule"] = self.driver.report()
         return out
@@ -146,9 +163,9 @@ class Appearance:
         lobe_on = self.decision.specular and self.specular_off
         if not self.decision.specular:
             self.specular_off = self.specular_off or "specular" in material.trainable
-            _disable_specular(material)
+            material.disable("specular")
         elif lobe_on:  # highlights found after a diffuse-only decision: the lobe restarts
-            _restart_specular(material)
+            material.restart_specular()
             self.specular_off = False
         seconds = time.perf_counter() - start
         self.seconds += seconds
@@ -188,28 +205,10 @@ def lit_environment(capture: Capture, material):
     staged material's light factor k (scene scale = strength x k) applies to every render of
     the capture's own lighting."""
     env = capture.environment
-    factor = getattr(material, "light_factor", 1.0)
+    factor = material.light_factor
     return env if env is None or factor == 1.0 else env.scaled(factor)
 
 
 def _disable_specular(material) -> None:
-    """The diffuse-only model: specular fixed at 0 and no longer trained."""
-    if hasattr(material, "make_constant"):  # mesh colors
-        material.make_constant("specular")
-        material.set_values("specular", np.zeros_like(material.values("specular")))
-    else:
-        values = material.values()
-        values["specular"] = np.zeros_like(values["specular"])
-        material.set_values(values)
-    material.trainable = tuple(t for t in material.trainable if t != "specular")
-
-
-def _restart_specular(material) -> None:
-    """The specular lobe back at its neutral start and trained again (held at 0 it would stay
-    there: the reparameterising sigmoid is flat at its ends); roughness restarts with it."""
-    if hasattr(material, "make_constant"):  # mesh colors
-        for name in ("specular", "roughness"):
-            material.set_values(name, NEUTRAL[name], "constant")
-    else:
-        material.set_values({**material.values(), "specular": START["specular"], "roughness": START["roughness"]})
-    material.trainable = (*material.trainable, "specular")
+    """The diffuse-only model: specular fixed at 0 and no longer trained (Material.disable)."""
+    material.disable("specular")

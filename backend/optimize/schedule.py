@@ -42,8 +42,8 @@ def level_size(level: int, coarse: int, finest: int) -> int:
     return int(min(finest, coarse * 2 ** level))
 
 
-def keeps_improving(previous: dict | None, current: dict, tolerance: float) -> bool:
-    """Whether another level is worth running after ``current`` (dicts with size, loss)."""
-    if previous is None or previous["size"] != current["size"]:
+def keeps_improving(previous, current, tolerance: float) -> bool:
+    """Whether another level is worth running after ``current`` (LevelRecords: size, loss)."""
+    if previous is None or previous.size != current.size:
         return True
-    return current["loss"] < previous["loss"] * (1 - tolerance)
+    return current.loss < previous.loss * (1 - tolerance)

@@ -7,10 +7,9 @@ import numpy as np
 
 from ..capture.model import Capture
 from ..geometry.mesh import Mesh
+from ..material.base import NEUTRAL
 from .fields import VertexField
 from .scene import RenderSettings, SceneRenderer
-
-NEUTRAL = {"albedo": 0.5, "specular": 0.1, "roughness": 0.5}
 
 
 def display_field(mesh: Mesh) -> VertexField:

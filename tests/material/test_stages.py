@@ -10,6 +10,7 @@ variant.choose()
 
 from backend.capture.model import Environment  # noqa: E402
 from backend.material import stages  # noqa: E402
+from backend.material.schedule import MaterialSchedule, run_cycle  # noqa: E402
 from backend.material.model import MeshColorMaterial  # noqa: E402
 from backend.render.scene import RenderSettings, SceneRenderer  # noqa: E402
 from backend.synth import layout, procedural  # noqa: E402
@@ -102,7 +103,7 @@ def test_environment_brightness_factor_is_recovered():
 
 
 def test_schedule_runs_constant_then_diffuse_then_specular():
-    s = stages.MaterialSchedule(constant_cycles=5, patience=1)
+    s = MaterialSchedule(constant_cycles=5, patience=1)
     seen = []
     losses = iter([10, 9, 8, 7, 6, 5, 4, 4, 3, 2.5, 2.5, 2.5])
     while s.stage != "done":
@@ -115,7 +116,7 @@ def test_schedule_runs_constant_then_diffuse_then_specular():
 
 def test_schedule_leaves_converged_constants_early():
     # a short run without re-meshing: constants that stop improving hand over to the textures
-    s = stages.MaterialSchedule(constant_cycles=5, patience=1)
+    s = MaterialSchedule(constant_cycles=5, patience=1)
     seen = []
     for loss in [10, 8, 8, 6, 5, 5]:
         seen.append(s.stage)
@@ -124,7 +125,7 @@ def test_schedule_leaves_converged_constants_early():
 
 
 def test_finalise_reopens_the_textures_once_with_more_patience():
-    s = stages.MaterialSchedule(constant_cycles=1, patience=1)
+    s = MaterialSchedule(constant_cycles=1, patience=1)
     for loss in [10, 9, 9, 8, 8]:
         s.report(loss)
     assert s.stage == "done"
@@ -141,10 +142,10 @@ def test_finalise_reopens_the_textures_once_with_more_patience():
 
 
 def test_finalise_runs_diffuse_first_when_the_textures_had_not_got_that_far():
-    unfinished = stages.MaterialSchedule(constant_cycles=1, patience=1)
+    unfinished = MaterialSchedule(constant_cycles=1, patience=1)
     unfinished.report(10)
     assert unfinished.stage == "diffuse"
-    diffuse_only = stages.MaterialSchedule(constant_cycles=1, patience=1, stage="done")
+    diffuse_only = MaterialSchedule(constant_cycles=1, patience=1, stage="done")
     for s, last in ((unfinished, "specular"), (diffuse_only, "diffuse")):
         s.finalise(last=last)
         seen = []
@@ -155,7 +156,7 @@ def test_finalise_runs_diffuse_first_when_the_textures_had_not_got_that_far():
 
 
 def test_a_refinement_runs_one_cycle_of_the_last_stage():
-    s = stages.MaterialSchedule(constant_cycles=1, patience=1, stage="done")
+    s = MaterialSchedule(constant_cycles=1, patience=1, stage="done")
     s.refine("specular")
     s.report(5.0)  # an improving cycle: the refinement still ends
     assert s.stage == "done" and s.cycle_limit is None
@@ -167,7 +168,7 @@ def test_a_refinement_runs_one_cycle_of_the_last_stage():
 
 
 def test_an_undone_cycle_ends_its_stage_even_with_patience_left():
-    s = stages.MaterialSchedule(constant_cycles=1, patience=1)
+    s = MaterialSchedule(constant_cycles=1, patience=1)
     for loss in [10, 9, 9, 8, 8]:
         s.report(loss)
     s.finalise(last="diffuse")  # patience 2, best reset
@@ -188,10 +189,10 @@ def test_run_cycle_walks_the_schedule():
     material = MeshColorMaterial(mesh, 1)
     renderer = SceneRenderer(mesh, material.field, cams[:3], lights[:3], env,
                              RenderSettings(spp=4, max_depth=2, integrator="prb"), env_pixels=sky)
-    schedule = stages.MaterialSchedule(constant_cycles=1, patience=1, min_improvement=0.5)
+    schedule = MaterialSchedule(constant_cycles=1, patience=1, min_improvement=0.5)
     ran = []
     while schedule.stage != "done" and len(ran) < 8:
-        ran.append(stages.run_cycle(schedule, renderer, images, None, material,
+        ran.append(run_cycle(schedule, renderer, images, None, material,
                                     stages.FitSettings(iterations=4)).stage)
     assert ran[0] == "constant" and "diffuse" in ran and ran[-1] == "specular" and schedule.stage == "done"
     assert schedule.light_fitted and material.light_factor != 1.0
@@ -206,11 +207,11 @@ def test_a_stage_that_raises_the_loss_is_undone():
     images, weights = render_truth(mesh, cams[:3], lights[:3], truth)
     renderer = SceneRenderer(mesh, truth.field, cams[:3], lights[:3], None,
                              RenderSettings(spp=8, max_depth=2, integrator="prb"))
-    schedule = stages.MaterialSchedule(constant_cycles=1)
+    schedule = MaterialSchedule(constant_cycles=1)
     schedule.stage = "specular"
     before = {n: truth.values(n).copy() for n in truth.CHANNELS}
     loss = stages.evaluate_loss(renderer, images, weights, truth)
-    result = stages.run_cycle(schedule, renderer, images, weights, truth,
+    result = run_cycle(schedule, renderer, images, weights, truth,
                               stages.FitSettings(iterations=6, lr=20.0, lr_decay=1.0))
     assert result.reverted and schedule.history[-1][1] == loss
     assert truth.channels["specular"].kind == "constant"  # the stage had made it mesh colors
@@ -220,7 +221,7 @@ def test_a_stage_that_raises_the_loss_is_undone():
     start = MeshColorMaterial(mesh, 1)  # neutral grey: a sound constant fit only improves it
     renderer = SceneRenderer(mesh, start.field, cams[:3], lights[:3], None,
                              RenderSettings(spp=8, max_depth=2, integrator="prb"))
-    result = stages.run_cycle(stages.MaterialSchedule(), renderer, images, weights, start,
+    result = run_cycle(MaterialSchedule(), renderer, images, weights, start,
                               stages.FitSettings(iterations=10))
     assert not result.reverted and not np.allclose(start.values("albedo"), MeshColorMaterial(mesh, 1).values("albedo"))
 
@@ -277,9 +278,9 @@ def test_the_specular_stage_is_fitted_without_its_check_views():
 
     def fit_losses(targets, check_every):
         material = MeshColorMaterial(mesh, 1)
-        schedule = stages.MaterialSchedule()
+        schedule = MaterialSchedule()
         schedule.stage = "specular"
-        result = stages.run_cycle(schedule, _renderer(mesh, material, cams, lights), targets, weights, material,
+        result = run_cycle(schedule, _renderer(mesh, material, cams, lights), targets, weights, material,
                                   stages.FitSettings(iterations=16, check_every=check_every))
         assert material.channels["specular"].kind == "colors" or result.reverted
         return result.losses

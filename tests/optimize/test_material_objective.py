@@ -13,7 +13,7 @@ variant.choose()
 from backend.bench._scenes import render_capture  # noqa: E402
 from backend.capture.load import load_capture  # noqa: E402
 from backend.capture.model import PointLight  # noqa: E402
-from backend.optimize.material import ConstantMaterial, parse_spec  # noqa: E402
+from backend.material.constant import ConstantMaterial, parse_spec  # noqa: E402
 from backend.optimize.objective import Objective  # noqa: E402
 from backend.optimize.views import ViewSet, scaled_camera, validation_views  # noqa: E402
 from backend.render.scene import RenderSettings  # noqa: E402
@@ -44,19 +44,20 @@ def test_material_spec_parsing():
 def test_constant_material_values_display_and_persistence(tmp_path):
     known = ConstantMaterial.from_spec("known:0.6,0.5,0.4:0.3:0.2")
     assert known.trainable == ()
-    v = known.values()
-    assert np.allclose(v["albedo"], [0.6, 0.5, 0.4], atol=1e-4) and np.isclose(v["roughness"][0], 0.2, atol=1e-4)
+    assert known.KIND == "constant" and known.values("albedo").shape == (1, 3)
+    assert np.allclose(known.values("albedo"), [0.6, 0.5, 0.4], atol=1e-4)
+    assert np.isclose(known.values("roughness")[0, 0], 0.2, atol=1e-4)
     shown = known.display(icosphere(1))
     assert shown.vertex_colors.shape == (42, 3) and np.allclose(shown.attributes["specular"], 0.3, atol=1e-4)
     auto = ConstantMaterial.from_spec("auto")
     assert set(auto.trainable) == {"albedo", "specular", "roughness"}
     latents = auto.parameters()
     auto.load_parameters({"specular": np.array([5.0])})  # in place: the same Dr.Jit array
-    assert auto.parameters()["specular"] is latents["specular"] and auto.values()["specular"][0] > 0.99
+    assert auto.parameters()["specular"] is latents["specular"] and auto.values("specular")[0, 0] > 0.99
     auto.save(tmp_path / "m.npz")
     back = ConstantMaterial.load(tmp_path / "m.npz")
     assert back.trainable == auto.trainable
-    assert np.allclose(back.values()["specular"], auto.values()["specular"], atol=1e-4)
+    assert np.allclose(back.values("specular"), auto.values("specular"), atol=1e-4)
 
 
 def test_views_are_premultiplied_once_and_cameras_follow_resizing(sphere_capture):

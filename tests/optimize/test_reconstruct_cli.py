@@ -104,18 +104,14 @@ def test_reconstruct_end_to_end(capture, tmp_path):
 def test_snapshots_thin_out_when_writing_them_is_slow():
     """Snapshots come every snapshot_every_s, or less often so that writing them (0.6 s at
     30k faces) takes at most snapshot_share of the run."""
-    from types import SimpleNamespace
-
     from backend import variant
 
     variant.choose(None)
-    from backend.optimize.loop import Reconstruction
+    from backend.optimize.run import snapshot_interval
 
     config = ReconstructConfig()
-    run = SimpleNamespace(config=config, snapshot_seconds=0.01)
-    assert Reconstruction._snapshot_interval(run) == config.snapshot_every_s
-    run.snapshot_seconds = 0.6
-    assert Reconstruction._snapshot_interval(run) == pytest.approx(0.6 / config.snapshot_share)
+    assert snapshot_interval(config, 0.01) == config.snapshot_every_s
+    assert snapshot_interval(config, 0.6) == pytest.approx(0.6 / config.snapshot_share)
 
 
 def test_time_budget_picks_the_calibrated_preset_and_stops_on_time(capture, tmp_path):
@@ -335,14 +331,14 @@ def test_a_level_whose_material_steps_diverge_goes_on_with_the_material_frozen(c
 
     variant.choose(None)
     from backend.capture.load import load_capture
-    from backend.optimize.loop import Reconstruction
+    from backend.optimize.run import reconstruct
     from backend.optimize.run_folder import RunFolder
 
     config = ReconstructConfig(init="sphere", material="staged", effects="specular", max_size=40, coarse_size=20,
                                initial_faces=1500, spp=8, max_levels=1, level_iterations=60, material_warmup=0,
                                material_lr=20.0, polish_rounds=0)
     folder = RunFolder.create(tmp_path / "run", resume=False, overwrite=False)
-    assert Reconstruction(load_capture(capture), folder, config, lambda *a, **k: None).run() == 0
+    assert reconstruct(load_capture(capture), folder, config, lambda *a, **k: None).exit_code == 0
     level = json.loads((tmp_path / "run" / "report.json").read_text())["levels"][0]
     assert level["material_frozen_at"] == config.eval_every  # the first validation: absurd material steps
     assert level["loss"] < level["loss_start"]  # the surface went on improving

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -73,8 +74,11 @@ def test_plateau_and_level_rules():
     assert not p.update(0.95)
     assert p.converged and p.best == 0.9
     assert [level_size(k, 64, 256) for k in range(4)] == [64, 128, 256, 256]
-    assert keeps_improving(None, {"size": 64, "loss": 1.0}, 0.01)
-    assert keeps_improving({"size": 64, "loss": 1.0}, {"size": 128, "loss": 2.0}, 0.01)  # new size: go on
-    assert not keeps_improving({"size": 128, "loss": 1.0}, {"size": 128, "loss": 0.995}, 0.01)
-    assert keeps_improving({"size": 128, "loss": 1.0}, {"size": 128, "loss": 0.98}, 0.01)
+    def record(size, loss):
+        return SimpleNamespace(size=size, loss=loss)
+
+    assert keeps_improving(None, record(64, 1.0), 0.01)
+    assert keeps_improving(record(64, 1.0), record(128, 2.0), 0.01)  # new size: go on
+    assert not keeps_improving(record(128, 1.0), record(128, 0.995), 0.01)
+    assert keeps_improving(record(128, 1.0), record(128, 0.98), 0.01)
     assert math.isinf(Plateau().best)

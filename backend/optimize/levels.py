@@ -1,0 +1,216 @@
+"""``LevelRun`` and ``PolishRun``: one run of vertex steps at one image size.
+
+A level optimises the vertices (Laplacian-preconditioned steps, several views per step,
+fixed seeds) with joint material steps, halves its step when the validation loss plateaus
+and backtracks to its best surface when the loss rises by ``backtrack``; after a backtrack
+the material steps stop first.
+
+A polish round starts from a converged surface under the finished material, which stays
+frozen (noisy joint steps would blur the fitted textures). There single validation losses
+swing by several per cent between evaluations while held-out views keep improving, so a
+round grows into its step over ``polish_warmup`` steps and keeps it; it backtracks only when
+a loss is ``polish_divergence`` above the best, and ends when the mean of the last
+``polish_window`` losses stops setting new bests."""
+
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+
+from ..geometry.mesh import Mesh
+from ..geometry.topology import enclosed, mean_edge_length
+from .appearance import lit_environment
+from .objective import seed_for
+from .records import LevelRecord
+from .schedule import Plateau, level_size
+from .steps import Adam, VertexOptimizer, clip_outliers, finite
+from .views import validation_views
+
+
+class LevelRun:
+    """One geometry level of the run ``run`` (optimize.run.Reconstruction); call it once."""
+
+    stage = "geometry"
+    material_steps = True  # joint material steps (until the first backtrack)
+
+    def __init__(self, run):
+        self.run, self.config, self.state = run, run.config, run.state
+
+    # -- what differs between levels and polish rounds ---------------------------------------------
+    def patience(self) -> int:
+        return self.config.patience
+
+    def limit(self) -> int:
+        return self.config.level_iterations
+
+    def reserve(self) -> float:
+        return self.run.budget.geometry_reserve()
+
+    def warmup(self) -> int:
+        """Material-only steps that open level 0 when the material is estimated: a wrong
+        material makes the geometry compensate (a too-dark material inflates the mesh
+        toward the lights), so the material gets a head start."""
+        if self.state.level != 0 or not self.run.material.trainable:
+            return 0
+        cap = self.config.iterations  # a capped run keeps most of its steps for geometry
+        return self.config.material_warmup if cap is None else min(self.config.material_warmup, cap // 3)
+
+    def before_step(self) -> None:
+        pass
+
+    def step_final(self) -> float:
+        return self.opt.lr / self.lr0
+
+    def evaluate(self, val: float, vertices: np.ndarray, geometry: bool, warmup: int):
+        """Act on a validation loss; returns (vertices, whether the run ends)."""
+        c, opt, plateau = self.config, self.opt, self.plateau
+        if plateau.update(val):
+            self.best = (vertices.copy(), self.run.latents())
+        elif val > plateau.best * (1 + c.backtrack) or not math.isfinite(val):
+            vertices = self.best[0].copy()  # backtrack: the step was too long
+            self.run.material.load_parameters(self.best[1])
+            opt.set_vertices(vertices)
+            opt.reset_moments()
+            if self.joint and geometry:
+                # the material's steps are the first suspects: Adam moves every mesh-color
+                # sample by about its step, noise or not, which undoes a fitted texture. The
+                # level goes on with the material frozen
+                self.joint, self.frozen_at = False, self.state.level_iteration
+            else:
+                opt.lr *= 0.5
+        settled = self.state.level_iteration >= c.min_level_iterations + warmup
+        if plateau.converged and settled:
+            if opt.lr <= self.lr0 * c.min_step_scale * 1.0001:
+                return vertices, True
+            opt.lr *= 0.5
+            plateau.stale = 0
+        return vertices, False
+
+    # -- the steps ------------------------------------------------------------------------------
+    def __call__(self) -> LevelRecord:
+        run, c, s = self.run, self.config, self.state
+        start = time.perf_counter()
+        size = level_size(s.level, c.coarse_size, c.max_size)
+        views = run.viewset.at(size)
+        centres = np.array([v.camera.centre for v in views])
+        environment = lit_environment(run.capture, run.material)
+        objective = run.objective_factory(s.mesh, run.material, views, run.settings(), environment, tone=c.tone)
+        self.lr0 = c.step * mean_edge_length(s.mesh)
+        self.opt = opt = VertexOptimizer(s.mesh.vertices, s.mesh.faces, run.stiffness.lambda_, self.lr0)
+        material_opt = Adam(c.material_lr)
+        val_ids = validation_views(len(views), c.validation_views)
+        val_seed = seed_for(c.seed, 10_000_019, 0)
+        self.plateau = plateau = Plateau(c.plateau_tolerance, self.patience())
+        self.full, self.recent = self.lr0, []  # a polish round's step and its validation losses
+        limit = self.limit()
+        vertices = s.mesh.vertices.copy()
+        plateau.update(objective.validation_loss(vertices, val_ids, val_seed, c.validation_spp))
+        run.emit("stage", stage=self.stage, level=s.level, faces=s.mesh.n_faces, iteration=s.iteration,
+                 loss=plateau.best, size=size, seconds=round(run.budget.elapsed(), 3),
+                 environment_strength=None if environment is None else environment.strength)
+        self.best = (vertices.copy(), run.latents())
+        first_loss = plateau.best
+        rng = np.random.default_rng([c.seed, s.level])
+        order: list[int] = []
+        warmup = self.warmup() if self.material_steps else 0
+        s.level_iteration = 0
+        self.joint, self.frozen_at = self.material_steps, None
+        try:
+            while s.level_iteration < limit:
+                run.folder.check_stop()
+                if run.budget.out(self.reserve()):
+                    break
+                ids = []
+                while len(ids) < min(c.views_per_step, len(views)):
+                    if not order:
+                        order = list(rng.permutation(len(views)))
+                    ids.append(int(order.pop()))
+                geometry = s.level_iteration >= warmup
+                self.before_step()
+                loss, grad, mgrads = objective.loss_and_grad(vertices, ids, seed_for(c.seed, s.iteration, 0),
+                                                             geometry, self.joint)
+                s.iteration += 1
+                s.level_iteration += 1
+                if not (math.isfinite(loss) and finite(*([grad] if geometry else []), *mgrads.values())):
+                    run.skip("non-finite loss or gradient")
+                    continue
+                if geometry:
+                    new_vertices = opt.step(clip_outliers(grad, run.stiffness.clip))
+                    if not finite(new_vertices):
+                        opt.set_vertices(vertices)
+                        run.skip("non-finite vertex positions after a step")
+                        continue
+                    if enclosed(Mesh(new_vertices, s.mesh.faces), centres).any():
+                        # no silhouette left to render from inside: the step was too long
+                        opt.set_vertices(vertices)
+                        opt.reset_moments()
+                        opt.lr *= 0.5
+                        self.full *= 0.5
+                        run.skip("the step put a camera inside the mesh (step halved)")
+                        continue
+                    vertices = new_vertices
+                if mgrads:
+                    latents = {n: z for n, z in run.latents().items() if n in mgrads}  # the trainable ones
+                    run.material.load_parameters(material_opt.step(latents, mgrads))
+                run.progress.update(stage=self.stage, level=s.level, iteration=s.level_iteration,
+                                    iterations=limit, loss=loss, faces=s.mesh.n_faces)
+                if s.level_iteration % c.eval_every == 0:
+                    val = objective.validation_loss(vertices, val_ids, val_seed, c.validation_spp)
+                    vertices, done = self.evaluate(val, vertices, geometry, warmup)
+                    if done:
+                        break
+                if time.perf_counter() - run.last_snapshot >= run.snapshot_interval():
+                    s.mesh = Mesh(vertices, s.mesh.faces)
+                    run.snapshot(loss=loss)
+        finally:
+            # keep the best surface found so far, also when cancelled
+            s.mesh = Mesh(self.best[0], s.mesh.faces)
+            run.material.load_parameters(self.best[1])
+            s.timed(self.stage, start)
+        record = LevelRecord(level=s.level, size=size, faces=s.mesh.n_faces, iterations=s.level_iteration,
+                             loss_start=first_loss, loss=plateau.best, step_final=self.step_final(),
+                             material_frozen_at=self.frozen_at, seconds=round(time.perf_counter() - start, 3),
+                             elapsed=round(run.budget.elapsed(), 3), polish=not self.material_steps)
+        if run.truth is not None and c.track_metrics:
+            record.metrics = run.metrics(s.mesh)
+        s.levels.append(record)
+        return record
+
+
+class PolishRun(LevelRun):
+    """One polish round: the material frozen, a steady step (see the module's docstring)."""
+
+    stage = "polish"
+    material_steps = False
+
+    def patience(self) -> int:
+        return self.config.polish_patience
+
+    def limit(self) -> int:
+        return self.config.level_iterations * self.config.polish_length
+
+    def reserve(self) -> float:
+        return self.run.budget.polish_reserve()
+
+    def before_step(self) -> None:
+        self.opt.lr = self.full * min(1.0, (self.state.level_iteration + 1) / max(self.config.polish_warmup, 1))
+
+    def step_final(self) -> float:
+        return self.full / self.lr0
+
+    def evaluate(self, val: float, vertices: np.ndarray, geometry: bool, warmup: int):
+        c, opt, plateau = self.config, self.opt, self.plateau
+        if val > plateau.best * (1 + c.polish_divergence) or not math.isfinite(val):
+            vertices = self.best[0].copy()  # diverged: back to the last surface checked
+            opt.set_vertices(vertices)
+            opt.reset_moments()
+            self.full *= 0.5
+        else:
+            self.best = (vertices.copy(), self.best[1])
+            self.recent.append(val)
+            plateau.update(float(np.mean(self.recent[-c.polish_window:])))
+            if plateau.converged:
+                return vertices, True
+        return vertices, False

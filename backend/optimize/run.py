@@ -1,0 +1,342 @@
+"""``reconstruct()``: the reconstruction library function the ``reconstruct`` command, the
+benchmarks and the stability suite call.
+
+A run initialises a mesh and a material, then goes through its phases: geometry levels
+(``LevelRun``) alternating with material cycles and transitions (re-mesh or subdivide) until
+a level stops improving, the budget or the iteration cap runs out or a stop is requested;
+the material stages to the end on the final geometry; polish rounds (``PolishRun``), each
+followed by a material refinement, while they improve. ``RunState`` holds where it stands
+(for --resume and report.json), ``Budget`` the clock and its limits."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import time
+from contextlib import contextmanager
+from pathlib import Path
+
+import numpy as np
+
+from .. import fsio
+from ..capture.model import Capture
+from ..errors import InputError
+from ..geometry.init import initial_mesh
+from ..geometry.mesh import Mesh, load_mesh, save_mesh
+from ..geometry.simplify import FaceBudget
+from ..geometry.topology import enclosed, inspect
+from ..metrics import geometry_metrics
+from ..render.scene import RenderSettings
+from .appearance import Appearance
+from .budget import Budget
+from .config import ReconstructConfig
+from .levels import LevelRun, PolishRun
+from .objective import Objective
+from .progress import LockedEmitter, Progress, StopOnProgress
+from .records import LevelRecord, RunState
+from .run_folder import RunFolder, StopRequested
+from .schedule import keeps_improving, level_size
+from .stiffness import choose as choose_stiffness
+from .transition import transition
+from .views import ViewSet
+
+
+@dataclasses.dataclass
+class Result:
+    """How a run ended: ``exit_code`` 0 (done) or 130 (cancelled), and its folder."""
+
+    exit_code: int
+    folder: Path
+
+    @property
+    def report(self) -> dict | None:
+        path = self.folder / "report.json"
+        return json.loads(path.read_text()) if self.exit_code == 0 and path.is_file() else None
+
+
+def reconstruct(capture: Capture, out: RunFolder, config: ReconstructConfig, events, *, resume: bool = False,
+                material=None, objective_factory=Objective) -> Result:
+    """Reconstruct ``capture`` into the run folder ``out`` (docs/protocol.md), emitting
+    ``events`` (an Emitter: ``events(name, **fields)``).
+
+    Args:
+        resume: continue from the folder's saved state.
+        material: the material model of a new run (default: the one ``config.material``
+            names, through material.factory; a staged run always builds its own).
+        objective_factory: builds each level's objective, called as ``Objective`` is (tests
+            wrap the real one to record every step).
+    Raises InputError on bad input; cancellation returns exit code 130."""
+    run = Reconstruction(capture, out, config, events, material=material, resume=resume,
+                         objective_factory=objective_factory)
+    return Result(run.run(), out.path)
+
+
+@contextmanager
+def reported(emit):
+    """Errors and interruptions inside become ``error`` / ``cancelled`` events, then propagate."""
+    try:
+        yield
+    except InputError as err:
+        emit("error", message=err.line())
+        raise
+    except KeyboardInterrupt:
+        emit("cancelled", snapshot=None)
+        raise
+    except Exception as err:
+        emit("error", message=f"{type(err).__name__}: {err}")
+        raise
+
+
+class Reconstruction:
+    """One run: its phases, snapshots and report (see ``reconstruct``)."""
+
+    def __init__(self, capture: Capture, folder: RunFolder, config: ReconstructConfig, emit,
+                 material=None, resume: bool = False, objective_factory=Objective):
+        self.capture, self.folder, self.config = capture, folder, config
+        self.state = RunState()
+        emit = StopOnProgress(emit, folder.check_stop, lambda: self.state.phase != "done")
+        self.emit = LockedEmitter(emit)
+        self.material = material
+        self.resume = resume
+        self.objective_factory = objective_factory
+        self.viewset = ViewSet(capture, config.max_size)
+        self.appearance = Appearance(capture, config, emit)
+        self.budget = Budget(config, self.appearance, self.state)
+        self.truth = self._truth()
+        self.last_snapshot = 0.0
+        self.snapshot_seconds = 0.0  # what the last snapshot took to write
+        self.progress: Progress | None = None
+        self.stiffness = None
+
+    def run(self) -> int:
+        """Run to the end; returns the exit code (0 done, 130 cancelled)."""
+        with Progress(self.emit, self.budget.fraction, self.budget.elapsed) as self.progress:
+            try:
+                self._start()
+                self._phases()
+            except (KeyboardInterrupt, StopRequested):
+                return self._cancel()
+            self._finish()
+        return 0
+
+    # -- start -------------------------------------------------------------------------------------
+    def _start(self) -> None:
+        c, s = self.config, self.state
+        if self.resume:
+            self._load_state()
+            return
+        start = time.perf_counter()
+        self.emit("stage", stage="init", level=0, faces=0)
+        self.progress.update(force=True, stage="init", level=0, iteration=0, iterations=0, loss=None, faces=0)
+        s.mesh, kind = initial_mesh(self.capture, c.init, c.initial_faces,
+                                    warn=lambda message: self.emit("warning", message=message))
+        check_lights_outside(self.capture, s.mesh, kind)
+        coarse = self.viewset.at(c.coarse_size)
+        self.material = self.appearance.initial_material(s.mesh, coarse, given=self.material)
+        s.material_kind = self.material.KIND
+        self.appearance.decide(s.mesh, self.material, coarse, reason="initial mesh")
+        self._choose_stiffness(coarse)
+        s.budget = FaceBudget(s.mesh.n_faces, growth=c.face_growth)
+        s.timed("init", start)
+        report = inspect(s.mesh)
+        s.init = {"kind": kind, "faces": s.mesh.n_faces, "genus": report.genus,
+                  "seconds": round(time.perf_counter() - start, 3)}
+        if self.truth is not None:
+            s.init["metrics"] = self.metrics(s.mesh)
+        self.snapshot(loss=None)
+
+    def _load_state(self) -> None:
+        saved, material_path = self.folder.load_state()
+        s = self.state = self.budget.state = RunState.from_json(saved)
+        self.material = self.appearance.load_material(material_path, self.folder.path)
+        s.material_kind = self.material.KIND
+        self.emit("stage", stage="resume", level=s.level, faces=s.mesh.n_faces)
+        coarse = self.viewset.at(self.config.coarse_size)
+        self.appearance.restore(s.appearance, coarse)
+        self.appearance.decide(s.mesh, self.material, coarse, reason="resumed")
+        self._choose_stiffness(coarse)
+
+    def _choose_stiffness(self, views) -> None:
+        self.stiffness = choose_stiffness(self.config, views, spatially_varying=self.appearance.staged)
+        self.emit("stiffness", **self.stiffness.event())
+
+    # -- the phases --------------------------------------------------------------------------------
+    def _phases(self) -> None:
+        s = self.state
+        if s.phase in ("level", "transition"):
+            while True:
+                if s.phase == "level":
+                    record = LevelRun(self)()
+                    s.phase = "transition"
+                    self._material_cycle(record)
+                    self.snapshot(loss=record.loss)
+                    s.levels_ended = self._levels_end(record)
+                    if s.levels_ended:
+                        break
+                transition(self)
+                s.level += 1
+                s.phase = "level"
+            s.phase = "materials"
+        if s.phase == "materials":
+            self._finish_materials()
+            s.phase = "polish"
+        if s.phase == "polish":
+            self._polish()
+        self.appearance.settle(s.mesh, self.material, self.viewset.at(self.config.max_size), s.level)
+
+    def _levels_end(self, record: LevelRecord) -> str | None:
+        """Why no level follows ``record`` (None: another one does)."""
+        c, s = self.config, self.state
+        previous = s.levels[-2] if len(s.levels) > 1 else None
+        if self.budget.out(self.budget.geometry_reserve()):
+            return "iterations" if self.budget.out_of_iterations() else "time budget"
+        if s.level + 1 >= c.max_levels:
+            return "max levels"
+        if not keeps_improving(previous, record, c.level_tolerance):
+            return "converged"
+        if s.budget.limit > c.max_faces:
+            return "max faces"
+        return None
+
+    def _polish(self) -> None:
+        """Alternate geometry and material until the loss stops improving (as the paper does):
+        once the material stages have finished, the surface moves again under the fitted
+        material at the same face count (``PolishRun``), then the material is refined. Rounds
+        go on while the budget lasts and a round lowers the validation loss by
+        ``polish_tolerance``."""
+        c, s = self.config, self.state
+        if not self.appearance.staged:
+            return
+        while s.polished < c.polish_rounds and not self.budget.out(self.budget.polish_reserve()):
+            record = PolishRun(self)()
+            s.polished += 1
+            self.appearance.refine_material()
+            self._finish_materials()
+            if record.loss > record.loss_start * (1 - c.polish_tolerance):
+                break
+
+    def _material_cycle(self, record: LevelRecord) -> None:
+        """The effects re-checked while the lobe is off, then one stage of the staged material
+        schedule, on this level's geometry and views."""
+        s = self.state
+        views = self.viewset.at(level_size(s.level, self.config.coarse_size, self.config.max_size))
+        self.appearance.recheck(s.mesh, self.material, views, s.level)
+        result = self.appearance.material_cycle(s.mesh, self.material, views, s.level)
+        if result is not None:
+            record.add_cycle(result)
+
+    def _finish_materials(self, most: int = 12) -> None:
+        """Once geometry has converged: material stages until their schedule ends."""
+        s = self.state
+        views = self.viewset.at(self.config.max_size)
+        self.appearance.finalise()
+        last = 0.0  # seconds of the last cycle: one that would end past the budget is not begun
+        for _ in range(most):
+            if self.budget.out() or not self.budget.fits(last):
+                break
+            result = self.appearance.material_cycle(s.mesh, self.material, views, s.level)
+            if result is None:
+                break
+            last = result["seconds"]
+            s.levels[-1].add_cycle(result)
+            self.snapshot(loss=result["loss"])
+
+    # -- what the level runs use ---------------------------------------------------------------------
+    def settings(self) -> RenderSettings:
+        c = self.config
+        return self.appearance.geometry_settings(
+            RenderSettings(spp=c.spp, max_depth=c.max_depth, integrator=c.integrator, hide_emitters=True,
+                           sppc=c.spp, sppp=c.sppp, sppi=0))
+
+    def latents(self) -> dict[str, np.ndarray]:
+        return {n: np.array(z, np.float64) for n, z in self.material.parameters().items()}
+
+    def skip(self, why: str) -> None:
+        s = self.state
+        s.skipped += 1
+        self.emit("warning", message=f"step {s.iteration} skipped: {why} ({s.skipped} so far)")
+
+    def metrics(self, mesh: Mesh) -> dict:
+        """Geometry metrics against the ground truth (the default 100k samples, so every
+        figure of a run compares with every other); their time is not charged to the budget."""
+        with self.budget.uncharged():
+            out = geometry_metrics(mesh, self.truth)
+        return {k: round(v, 6) if isinstance(v, float) else v for k, v in out.items()}
+
+    # -- output --------------------------------------------------------------------------------------
+    def snapshot_interval(self) -> float:
+        """Seconds between snapshots: snapshot_every_s, stretched so that writing them (display
+        mesh and resumable state) takes at most snapshot_share of the run."""
+        return snapshot_interval(self.config, self.snapshot_seconds)
+
+    def snapshot(self, loss) -> str:
+        s = self.state
+        start = time.perf_counter()
+        info = {"iteration": s.iteration, "stage": s.phase, "level": s.level, "faces": s.mesh.n_faces, "loss": loss}
+        state = s.to_json(self.budget.elapsed(), self.appearance.state())
+        rel = self.folder.snapshot(self.material.display(s.mesh), info, state, self.material)
+        self.emit("snapshot", path=rel, iteration=s.iteration, faces=s.mesh.n_faces, loss=loss)
+        self.last_snapshot = time.perf_counter()
+        self.snapshot_seconds = self.last_snapshot - start
+        s.timed("snapshots", start)
+        return rel
+
+    def _cancel(self) -> int:
+        rel = None
+        if self.state.mesh is not None and self.state.budget is not None:
+            try:
+                rel = self.snapshot(loss=self.state.last_loss)
+            except (KeyboardInterrupt, StopRequested):  # a second request while writing: the last one stands
+                rel = None
+        self.emit("cancelled", snapshot=rel)
+        return 130
+
+    def _finish(self) -> None:
+        s = self.state
+        s.phase = "done"
+        self.snapshot(loss=s.last_loss)
+        save_mesh(self.folder.path / "result.ply", s.mesh)
+        metrics = self.metrics(s.mesh) if self.truth is not None else None
+        report = {
+            "capture": str(self.capture.root), "settings": dataclasses.asdict(self.config),
+            "stiffness": self.stiffness.event(),
+            "init": s.init, "levels": [lv.to_json() for lv in s.levels], "levels_ended": s.levels_ended,
+            "result": {"faces": s.mesh.n_faces, "vertices": s.mesh.n_vertices,
+                       "genus": inspect(s.mesh).genus, "iterations": s.iteration},
+            "losses": [lv.loss for lv in s.levels], "skipped_steps": s.skipped,
+            "timings": {**s.timings, "total": round(self.budget.elapsed(), 3),
+                        "metrics_excluded": round(self.budget.excluded, 3)},
+            "material": self.material.summary(), "metrics": metrics,
+            "premultiplied_views": self.viewset.premultiplied,
+            **self.appearance.finish(self.folder.path, s.mesh, self.material),
+        }
+        fsio.write_json(self.folder.path / "report.json", report)
+        self.emit("done", result="result.ply", report="report.json", metrics=metrics)
+
+    def _truth(self) -> Mesh | None:
+        rel = self.capture.ground_truth.get("mesh") if self.capture.ground_truth else None
+        path = self.capture.path(rel) if rel else None
+        return load_mesh(path) if path is not None and Path(path).is_file() else None
+
+
+def snapshot_interval(config: ReconstructConfig, snapshot_seconds: float) -> float:
+    """``snapshot_every_s``, or longer so that writing snapshots of ``snapshot_seconds`` each
+    takes at most ``snapshot_share`` of the run."""
+    c = config
+    return max(c.snapshot_every_s, snapshot_seconds / c.snapshot_share if c.snapshot_share > 0 else 0.0)
+
+
+def check_lights_outside(capture: Capture, mesh: Mesh, kind: str) -> None:
+    """A point light inside the starting surface leaves every render black and every
+    gradient zero: such a run would learn nothing and must not end "done"."""
+    lights = {tuple(np.round(light.position, 9)) for f in capture.frames for light in f.lights}
+    if not lights:
+        return
+    positions = np.array(sorted(lights))
+    inside = enclosed(mesh, positions)
+    if inside.any():
+        p = positions[np.argmax(inside)]
+        raise InputError(capture.root, f"the initial mesh ({kind}) encloses the point light at "
+                         f"({p[0]:.3g}, {p[1]:.3g}, {p[2]:.3g}): every render would be black",
+                         "start from a mesh that leaves the lights outside (--init sphere or a mesh file), "
+                         "or give masks that do not cover the lamp")

@@ -1,0 +1,68 @@
+"""Between two levels: re-mesh when the surface has become inconsistent (ray casting +
+screened Poisson; the material restarts from grey), else subdivide 1-to-4 and simplify to
+the face budget (the material carried over)."""
+
+from __future__ import annotations
+
+import time
+
+from ..geometry.poisson import SurfaceReconstructionError
+from ..geometry.remesh import poisson_from_samples, visible_samples
+from ..geometry.subdivide import midpoint
+from ..geometry.topology import inspect
+
+
+def transition(run) -> None:
+    """Re-mesh when needed, subdivide 1-to-4, honour the face budget (``run``: the
+    optimize.run.Reconstruction whose state.mesh and material change)."""
+    c, s = run.config, run.state
+    old = s.mesh
+    if c.remesh != "never" and _remesh(run, old):
+        return
+    start = time.perf_counter()
+    run.emit("stage", stage="refine", level=s.level, faces=old.n_faces)
+    fine, _ = midpoint(old)
+    s.mesh = s.budget.enforce(fine)
+    if s.mesh is fine:
+        run.material.on_subdivide(old, fine)
+    else:
+        # the simplified mesh lies on the old surface: resample the mesh colors rather than
+        # restart them from grey, so the next level's steps see the fitted material
+        run.material.on_remesh(s.mesh, old_mesh=old, reset=False)
+    s.timed("refine", start)
+
+
+def _remesh(run, old) -> bool:
+    """The re-mesh check after a level, recorded in its LevelRecord; True when applied."""
+    c, s = run.config, run.state
+    start = time.perf_counter()
+    run.emit("stage", stage="remesh", level=s.level, faces=old.n_faces)
+    run.progress.update(force=True, stage="remesh", level=s.level, faces=old.n_faces)
+    cameras = [v.camera for v in run.viewset.views]
+    masks = [v.mask for v in run.viewset.views] if run.capture.has_masks else None
+    samples = visible_samples(old, cameras, masks)
+    hits = len(samples.points) + samples.back_faces + samples.outside_masks
+    share = (samples.back_faces + samples.outside_masks) / max(hits, 1)
+    remeshed = None
+    if c.remesh == "always" or share > c.remesh_threshold:
+        target = s.budget.next_target(old.n_faces)
+        try:
+            remeshed = poisson_from_samples(samples, old, target, cameras=cameras, masks=masks)
+            report = inspect(remeshed)
+            if not report.closed_manifold:  # too few consistent samples (a tangled mesh): Poisson leaves holes
+                raise SurfaceReconstructionError("the rebuilt surface is not a closed manifold "
+                                                 f"({', '.join(report.issues)})")
+        except SurfaceReconstructionError as err:  # the current surface stays; the level goes on
+            run.emit("warning", message=f"re-meshing not applied: {err}")
+            remeshed = None
+        else:
+            run.material.on_remesh(remeshed)
+            run.appearance.on_remesh(remeshed, run.material, run.viewset.at(c.coarse_size))
+            s.mesh = remeshed
+    s.timed("remesh", start)
+    s.levels[-1].remesh = {"seconds": round(time.perf_counter() - start, 3),
+                           "inconsistent_share": round(share, 5), "back_faces": samples.back_faces,
+                           "outside_masks": samples.outside_masks, "applied": remeshed is not None,
+                           "faces": None if remeshed is None else remeshed.n_faces,
+                           "genus": None if remeshed is None else inspect(remeshed).genus}
+    return remeshed is not None
