@@ -6,11 +6,14 @@ while the mesh keeps changing.
   per face; ``table`` maps the paper's per-triangle index t K + k into it), numpy lookup.
 - ``field``: the Dr.Jit lookup (``MeshColorsField.lookup(si, active)``) with sigmoid
   reparameterised latents, exact gradients through ``dr.gather``.
-- ``model``: ``MeshColorMaterial``, the object the reconstruction loop swaps in: ``field``,
-  ``parameters()``, ``on_subdivide``, ``on_remesh``, ``display``, ``save``/``load``.
+- ``base``: ``Material``, the interface every material model offers the loop.
+- ``constant``: ``ConstantMaterial``, one albedo, specular and roughness for the surface.
+- ``model``: ``MeshColorMaterial``, constants per material or mesh colors.
+- ``factory``: the one place a model is chosen (``--material``, or the kind a save stores).
 - ``labels``: material masks checked before any work, clustering, per-face majority vote.
 - ``stages``: the optimisation stages (constants, textured diffuse with highlight masking and
-  the environment brightness factor, textured specular) and ``MaterialSchedule``.
+  the environment brightness factor, textured specular).
+- ``schedule``: ``MaterialSchedule`` (which stage runs next) and ``run_cycle``.
 - ``export``: baked texture atlas and ``write_glb`` (glTF 2.0 with KHR_materials_specular).
 
 - ``driver``: ``MaterialDriver``, the four calls the reconstruction loop makes.
@@ -18,7 +21,7 @@ while the mesh keeps changing.
 Typical use by the loop (see ``driver``)::
 
     driver = MaterialDriver(capture, n_materials)              # bad material masks -> InputError
-    material = driver.material(mesh, cameras, images, masks)    # pass to Reconstruction(material=...)
+    material = driver.material(mesh, cameras, images, masks)    # what Appearance.initial_material returns
     renderer = SceneRenderer(mesh, material.field, ...)         # the level's renderer (AD integrator)
     while not driver.done:                                      # alternating with geometry levels
         ...geometry level...; material.on_subdivide(old, new) or material.on_remesh(new, old)

@@ -1,2 +1,2 @@
-"""Geometry reconstruction by differentiable path tracing: targets, Laplacian-preconditioned
-vertex steps, the constant material model, the coarse-to-fine schedule and the run loop."""
+"""Geometry reconstruction by differentiable path tracing: ``run.reconstruct`` (the library
+call), its levels and polish rounds, budget, records, targets, vertex steps and schedule."""
