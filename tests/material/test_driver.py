@@ -13,7 +13,8 @@ from backend.capture.model import Capture, Frame  # noqa: E402
 from backend.errors import InputError  # noqa: E402
 from backend.material.driver import MaterialDriver  # noqa: E402
 from backend.material.model import MeshColorMaterial  # noqa: E402
-from backend.material.stages import FitSettings, MaterialSchedule  # noqa: E402
+from backend.material.schedule import MaterialSchedule  # noqa: E402
+from backend.material.stages import FitSettings  # noqa: E402
 from backend.render.scene import RenderSettings, SceneRenderer  # noqa: E402
 from backend.synth import layout, procedural  # noqa: E402
 from tests.material.test_labels import pixel_labels  # noqa: E402
