@@ -38,7 +38,7 @@ class MaterialSchedule:
     def report(self, loss: float, reverted: bool = False) -> str:
         """Record the loss of the cycle just run; returns the stage of the next cycle. A cycle
         that had to be undone ends its stage: the next one would start from the same material
-        and mesh (dragon Table 1 run: three final diffuse cycles of 21 s, all undone)."""
+        and mesh."""
         self.history.append((self.stage, float(loss)))
         self.cycle += 1
         if reverted:
@@ -60,8 +60,8 @@ class MaterialSchedule:
         """Geometry has converged: the textured stages run once more on the final surface, each
         until ``patience`` cycles stop improving. Textures that reached their ``last`` stage
         ("diffuse" without a specular lobe) run it again; the specular stage fits every channel,
-        highlights included, and a final diffuse cycle before it (highlights masked) was undone
-        in every Table 1 dragon run (three runs, 18-19 s each)."""
+        highlights included, and a final diffuse cycle before it (highlights masked) was always
+        undone."""
         if self.final:
             return
         self.final = True
@@ -71,8 +71,8 @@ class MaterialSchedule:
 
     def refine(self, stage: str = "specular", cycles: int = 1) -> None:
         """The geometry moved under the finished material: its last stage (the specular stage
-        fits every channel, highlights included) runs again for ``cycles``. A second cycle was
-        undone in all five refinements of three Table 1 dragon runs (23 s each)."""
+        fits every channel, highlights included) runs again for ``cycles`` (a second cycle
+        was always undone)."""
         self.stage, self.cycle, self.stale, self.best, self.patience = stage, 0, 0, math.inf, 1
         self.cycle_limit = cycles
 

@@ -261,9 +261,7 @@ def check_specular_texture(renderer, images, weights, material: MeshColorMateria
 
     On the views it was fitted to, a specular texture always wins: it also absorbs what the
     surface still gets wrong (a misplaced highlight dimmed, a missing one painted in), which
-    other views do not repeat. Table 1 meshes (their truth a uniform lobe; three dragon runs,
-    the armadillo, the Buddha): the texture's mean in its place changed held-out PSNR by -0.01
-    to +0.25 dB and relit PSNR by +0.10 to +0.66 dB (README, Materials)."""
+    other views do not repeat."""
     textured = evaluate_loss(renderer, images, weights, material, spp, views=views)
     texture = material.values("specular").copy()
     material.make_constant("specular")

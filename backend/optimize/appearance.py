@@ -184,7 +184,7 @@ class Appearance:
 
     def recheck(self, mesh, material, views, level: int) -> None:
         """After a geometry level, while the lobe is off: measure again. A coarse start can
-        hide highlights (the carved Buddha measured 0.95, its refined geometry 1.60)."""
+        hide highlights that the refined geometry shows."""
         if (self.measure and self.decision is not None and not self.decision.specular
                 and "specular" not in self.overrides):
             self.decide(mesh, material, views, reason=f"level {level}: highlights measured on the refined geometry")

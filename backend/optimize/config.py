@@ -5,11 +5,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 # Mesh colors tie the texture's resolution to the mesh, and the smooth-shaded specular lobe shows
-# every facet of the surface, so a staged run grows faces faster than the paper's rule. The
-# true dragon simplified to 17.5k faces scores 30.1 dB under its true material, at 35k 34.5 dB;
-# three 20-minute dragon runs at x1.5 (33.75k to 75.9k faces) scored 29.6, 30.0 and 30.2 dB,
-# one on the paper's rule (17.5k faces) 29.1 dB, all with the material reset at every
-# simplification; carried over instead, 30.4 and 31.0 dB (bench material --table, README).
+# every facet of the surface, so a staged run grows faces faster than the paper's rule
+# (figures: docs/results.md).
 STAGED_FACE_GROWTH = 1.5
 
 
@@ -43,10 +40,8 @@ class ReconstructConfig:
     tone: str = "log"  # loss on log(1 + x / mean radiance) ("linear": the paper's plain MSE)
     # Large Steps smoothing (I + lambda L) and the per-vertex gradient cap (percentile; 0: off).
     # None: chosen per capture by backend.optimize.stiffness (soft 2 / 95, or stiff 20 / 99.5 when
-    # one constant material must absorb a textured appearance). Measured on the paper-style
-    # dragon (32 views, 128 px, carve start, 1200 steps; point-to-point F1@0.01): lambda 20 / cap 99.5: 86.3,
-    # 20 / 95: 88.3, 5 / 95: 92.9, 2 / 95: 94.8, 1 / 95: 95.9, 0.5 / 95: 95.0 (steps start to
-    # backtrack). A stiff system moves only the smoothest modes, so detail converges slowly.
+    # one constant material must absorb a textured appearance). A stiff system moves only the
+    # smoothest modes, so detail converges slowly; below lambda 1 steps start to backtrack.
     lambda_: float | None = None
     step: float = 0.1  # largest step per iteration, as a fraction of the mean edge length
     clip: float | None = None

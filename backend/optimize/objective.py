@@ -6,10 +6,8 @@ Projective integrators give the silhouette gradients.
 
 By default both images pass through the tone curve t(x) = log(1 + x / s) first (s = the
 mean object radiance of the targets). Plain MSE (``tone="linear"``, the paper's loss) lets
-specular highlights dominate: measured on the paper-style dragon at 64 px, its per-vertex
-gradient is so heavy-tailed that ten vertices carry half its energy, and two seeds' smoothed
-gradients correlate at 0.15 (0.19 with a 1024-spp reference); through the log curve the
-same numbers are 0.33 and 0.60."""
+specular highlights dominate: its per-vertex gradient is heavy-tailed (a few vertices carry
+most of its energy) and gradients of two seeds barely agree; the log curve evens both out."""
 
 from __future__ import annotations
 
@@ -116,10 +114,9 @@ class Objective:
         renders a, b at half the samples each, with independent seeds, estimate it as
         mean((t(a) - t(y)) (t(b) - t(y))), since the noise of a and b is uncorrelated.
 
-        The plain error also holds the render's variance: on the paper-style dragon at 75.9k
-        faces (prb_projective, 6 views), 0.00141 at 16 spp against 0.00058 at 256, of which
-        about 0.00052 is the surface's and material's own. Convergence tests judge relative
-        gains, so they saw a third of the real one. The estimate is held at 1/20 of the plain
+        The plain error also holds the render's variance, which at low spp can exceed the
+        surface's and material's own error, so convergence tests (relative gains) would see
+        a fraction of the real one. The estimate is held at 1/20 of the plain
         error or above: below that the noise cannot tell surfaces apart."""
         self._set_vertices(mi.Float(np.asarray(vertices, np.float32).ravel()))
         half = max(1, (spp or self.settings.spp) // 2)

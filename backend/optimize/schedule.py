@@ -6,8 +6,8 @@ when ``patience`` evaluations in a row fail to improve the best loss by more tha
 ``tolerance`` (relative; default 0.5 %, well above the seed-fixed Monte Carlo jitter of a
 converged mesh, well below the gains of a level that is still moving). The run stops
 refining when a level at the same image size as the previous one improves the best
-validation loss by less than ``level_tolerance`` (default 0.3 %: on the paper-style dragon,
-levels that still gain about 0.5 F1 point each improve the loss by 0.5 to 1 %)."""
+validation loss by less than ``level_tolerance`` (default 0.3 %: levels that still gain
+accuracy improve the loss by more)."""
 
 from __future__ import annotations
 

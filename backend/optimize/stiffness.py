@@ -4,9 +4,7 @@ A soft system (lambda 2, gradients capped at the 95th percentile) lets detail co
 fast, and wins when the material model can explain the frames' colours: a uniformly
 coloured object, or mesh colors that learn the texture. When one constant material must
 stand for a textured object, the texture left in the residual pushes a soft surface into
-bumps, and a stiff system (lambda 20, cap 99.5) is better. Measured with Balanced settings
-within 4 minutes (point-to-surface F1@0.01): the paper-style dragon (uniform albedo) 94.8
-soft vs 86.3 stiff; the demo's textured blob 81.9 soft vs 94.6 stiff.
+bumps, and a stiff system (lambda 20, cap 99.5) is better (figures: docs/results.md).
 
 Texture is detected from chromaticity, which shading under white light does not change:
 the 90th percentile of the distance of object pixels' chromaticity (r, g, b) / (r + g + b)
