@@ -9,6 +9,7 @@ import shutil
 from pathlib import Path
 
 import numpy as np
+from PIL import Image
 
 from .images import read_mask, read_rgba, srgb_to_linear, write_image, write_mask
 from .model import Capture, Environment, Frame
@@ -46,8 +47,6 @@ def convert(capture: Capture, folder: Path, max_size: int | None) -> Capture:
 
 
 def _resize(image: np.ndarray, width: int, height: int, nearest: bool = False) -> np.ndarray:
-    from PIL import Image
-
     if image.shape[:2] == (height, width):
         return image
     channels = image[..., None] if image.ndim == 2 else image

@@ -23,6 +23,7 @@ import time
 from dataclasses import dataclass, field
 
 import numpy as np
+from PIL import Image
 
 from ..capture.images import read_mask, read_rgba, srgb_to_linear
 from ..capture.model import Camera, CameraResponse, Capture
@@ -82,8 +83,6 @@ class LightingEstimate:
 
 
 def _box(array: np.ndarray, width: int, height: int) -> np.ndarray:
-    from PIL import Image
-
     if array.shape[:2] == (height, width):
         return array.astype(np.float32)
     chans = array[..., None] if array.ndim == 2 else array

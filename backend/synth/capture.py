@@ -10,7 +10,7 @@ import numpy as np
 
 from .. import __version__, fsio
 from ..capture.format import save_capture
-from ..capture.images import write_image, write_mask
+from ..capture.images import read_rgba, write_image, write_mask
 from ..capture.model import Camera, Capture, Environment, Frame
 from ..geometry.mesh import Mesh, load_mesh, save_mesh
 from . import layout, procedural
@@ -65,8 +65,6 @@ def _environment_pixels(name: str, which: int) -> np.ndarray:
         if which == 0:
             return procedural.sky(256, 35, 40, 400)
         return procedural.sky(256, 60, -120, 250)
-    from ..capture.images import read_rgba
-
     return read_rgba(name)[0][..., :3]
 
 
@@ -107,7 +105,7 @@ def _write_view_set(root: Path, renderer, masker, cameras: list[Camera], lights,
 
 def synthesize(spec: SynthSpec, out: Path, emit) -> Capture:
     """Render the capture into ``out`` (an empty folder; the caller makes it atomic)."""
-    from ..render.fields import VertexField
+    from ..render.fields import VertexField  # here: render/ loads Mitsuba, which a variant must precede
     from ..render.scene import RenderSettings, SceneRenderer
 
     mesh = load_spec_mesh(spec)

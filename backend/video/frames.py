@@ -13,6 +13,7 @@ from pathlib import Path
 from typing import Iterator
 
 import numpy as np
+from PIL import Image
 from scipy import ndimage
 
 from ..capture.images import read_mask
@@ -71,8 +72,6 @@ class Source:
 
 
 def _read_rgb8(path: Path) -> np.ndarray:
-    from PIL import Image
-
     try:
         with Image.open(path) as im:
             if im.mode in ("I;16", "I;16B", "I"):
@@ -88,7 +87,7 @@ def _upright(rgb: np.ndarray, rotation: int) -> np.ndarray:
 
 
 def _decode(path: Path):
-    import av
+    import av  # here: only video decoding needs it
 
     try:
         with av.open(str(path)) as container:
@@ -105,7 +104,7 @@ def _decode(path: Path):
 
 
 def _probe_video(path: Path) -> Source:
-    import av
+    import av  # here: only video decoding needs it
 
     first = next(_decode(path), None)
     require(first is not None, path, "the video has no frames", "give a video with frames")
@@ -124,8 +123,6 @@ def _probe_video(path: Path) -> Source:
 
 
 def _probe_folder(path: Path) -> Source:
-    from PIL import Image
-
     files = sorted((p for p in path.iterdir() if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES),
                    key=_natural_key)
     require(len(files) > 0, path, "the folder holds no images", "give a folder of PNG or JPEG frames")

@@ -20,9 +20,17 @@ from pathlib import Path
 from typing import Iterable
 
 import numpy as np
+from scipy.spatial import ConvexHull, QhullError
 
 from ..capture.model import Camera, Capture, Frame
-from ..geometry.init.hull import LEVEL, HullConfig, MaskView, field_on_box, hull_box, sample
+from ..geometry.init.hull import (
+    LEVEL,
+    HullConfig,
+    MaskView,
+    field_on_box,
+    hull_box,
+    sample,
+)
 
 HULL_MASK_SIZE = 480  # masks are box-filtered to about this longer side for carving
 HULL_GRID = 64
@@ -106,8 +114,6 @@ def up_axis(cameras: list[Camera], pivot: np.ndarray) -> tuple[np.ndarray, str]:
 
 def diameter(points: np.ndarray) -> float:
     """The largest distance between two of the points."""
-    from scipy.spatial import ConvexHull, QhullError
-
     try:
         points = points[ConvexHull(points).vertices]
     except (QhullError, ValueError):  # flat or too few: use them all

@@ -26,6 +26,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from PIL import Image
 
 from ..capture.images import read_mask
 from ..errors import InputError
@@ -96,7 +97,7 @@ class SfmResult:
 
 @contextlib.contextmanager
 def _quiet_colmap():
-    import pycolmap
+    import pycolmap  # here: slow to load, and only capture-from-video needs it
 
     before = pycolmap.logging.minloglevel
     pycolmap.logging.minloglevel = 3  # fatal only: progress lines would flood stderr, and failures are ours to report
@@ -115,8 +116,6 @@ def feature_scale(width: int, height: int, options: SfmOptions) -> float:
 def write_feature_images(frames: list[Path], folder: Path, scale: float) -> tuple[int, int]:
     """Grey copies of the frames, resized by ``scale`` and stretched (1st..99.5th percentile
     to black..white) so dim footage gives SIFT contrast. Returns the feature image size."""
-    from PIL import Image
-
     folder.mkdir(parents=True, exist_ok=True)
     size = None
     for path in frames:
@@ -149,7 +148,7 @@ def image_pairs(names: list[str], options: SfmOptions) -> list[tuple[str, str]]:
 
 
 def _mapper_options(options: SfmOptions):
-    import pycolmap
+    import pycolmap  # here: slow to load, and only capture-from-video needs it
 
     opts = pycolmap.IncrementalPipelineOptions()
     opts.num_threads = options.threads
@@ -243,7 +242,7 @@ def _with_focal(camera, focal: float) -> np.ndarray:
 
 def _adjust(rec, focal: bool, distortion: bool) -> None:
     """Bundle adjustment of all poses and points (Cauchy loss, gauge fixed by two cameras)."""
-    import pycolmap
+    import pycolmap  # here: slow to load, and only capture-from-video needs it
 
     options = pycolmap.BundleAdjustmentOptions()
     options.print_summary = False
@@ -259,7 +258,7 @@ def _adjust(rec, focal: bool, distortion: bool) -> None:
 
 def _rebuild(db_path: Path, camera, poses: dict[int, np.ndarray]):
     """A reconstruction with the given poses and no points (to triangulate)."""
-    import pycolmap
+    import pycolmap  # here: slow to load, and only capture-from-video needs it
 
     rec = pycolmap.Reconstruction()
     rec.add_camera_with_trivial_rig(camera)
@@ -276,7 +275,7 @@ def _refine(rec, db_path: Path, image_dir: Path, out: Path, options: SfmOptions)
     """Re-triangulate every match with the poses held (two-view tracks too: they are what
     holds a frame at a weak link), then bundle-adjust: first with the intrinsics held
     (joined models settle), then everything, distortion included."""
-    import pycolmap
+    import pycolmap  # here: slow to load, and only capture-from-video needs it
 
     out.mkdir(parents=True, exist_ok=True)
     triangulation = _mapper_options(options)
@@ -307,14 +306,12 @@ def solve(frames: list[Path], workdir: Path, options: SfmOptions | None = None, 
     the feature images and the COLMAP database. With ``masks`` (one per frame) the cameras are
     refined by silhouette coherence (``silhouettes.refine``). Raises InputError when fewer than
     ``min_registered_share`` of the frames register; ``source`` names the input in that error."""
-    import pycolmap
+    import pycolmap  # here: slow to load, and only capture-from-video needs it
 
     options = options or SfmOptions()
     emit = emit or (lambda *a, **k: None)
     if options.camera_model not in CAMERA_MODELS:
         raise ValueError(f"camera model {options.camera_model} is not one of {sorted(CAMERA_MODELS)}")
-    from PIL import Image
-
     with Image.open(frames[0]) as im:
         width, height = im.size
     names = [p.stem for p in frames]

@@ -13,7 +13,9 @@ from pathlib import Path
 import numpy as np
 
 from ...errors import InputError, require
+from ...geometry.mesh import Mesh, save_mesh
 from ..format import check_pose
+from ..images import srgb_to_linear
 from ..model import Capture, Frame
 from .common import opencv_camera, read_text
 
@@ -195,8 +197,5 @@ def load(path: Path, workdir: Path | None = None, images: Path | None = None) ->
 
 def write_points(path: Path, xyz: np.ndarray, rgb: np.ndarray) -> Path:
     """Sparse points as a face-less PLY with linear colours (our mesh writer)."""
-    from ...geometry.mesh import Mesh, save_mesh
-    from ..images import srgb_to_linear
-
     save_mesh(path, Mesh(xyz, np.zeros((0, 3)), srgb_to_linear(rgb / 255.0)))
     return path

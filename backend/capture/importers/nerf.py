@@ -16,6 +16,7 @@ import math
 from pathlib import Path
 
 import numpy as np
+from PIL import Image
 
 from ...errors import InputError, require
 from ..format import check_pose, parse_environment, parse_lights
@@ -44,8 +45,6 @@ def _image_path(root: Path, file_path: str) -> Path:
 def _has_alpha(path: Path) -> bool:
     if not path.is_file() or path.suffix.lower() not in (".png", ".tif", ".tiff"):
         return False
-    from PIL import Image
-
     try:
         with Image.open(path) as im:
             return "A" in im.mode

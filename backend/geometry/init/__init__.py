@@ -8,6 +8,11 @@ from pathlib import Path
 from ...capture.model import Capture
 from ...errors import InputError
 from ..mesh import Mesh
+from .carve import carve
+from .points_poisson import points_mesh
+from .sphere import box_mesh, sphere_mesh
+from .spheres import sphere_cloud
+from .user_mesh import check_initial_mesh, user_mesh
 
 KINDS = ("carve", "sphere", "box", "spheres", "points")
 
@@ -24,33 +29,19 @@ def initial_mesh(capture: Capture, kind: str | None, faces: int, warn=lambda mes
     kind = kind or default_kind(capture)
     cameras = [f.camera for f in capture.frames]
     if kind == "carve":
-        from .carve import carve
-
         mesh = carve(capture, faces)
     elif kind == "sphere":
-        from .sphere import sphere_mesh
-
         mesh = sphere_mesh(capture, faces)
     elif kind == "box":
-        from .sphere import box_mesh
-
         mesh = box_mesh(capture, faces)
     elif kind == "spheres":
-        from .spheres import sphere_cloud
-
         mesh = sphere_cloud(capture, faces)
     elif kind == "points":
-        from .points_poisson import points_mesh
-
         mesh = points_mesh(capture, faces)
     else:
         path = Path(kind)
         if not path.is_file():
             raise InputError(path, f"'{kind}' is neither an initialisation ({', '.join(KINDS)}) nor a mesh file",
                              "give one of those names or an existing OBJ/PLY file")
-        from .user_mesh import user_mesh
-
         return user_mesh(path, cameras, faces, warn), str(path)
-    from .user_mesh import check_initial_mesh
-
     return check_initial_mesh(mesh, kind, cameras, warn), kind

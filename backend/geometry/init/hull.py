@@ -10,6 +10,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy import ndimage
 
 from ...capture.images import read_mask
 from ...capture.model import Camera, Capture
@@ -97,8 +98,6 @@ class HullField:
 
     def largest_part(self) -> np.ndarray:
         """The largest connected (6-neighbour) part of the inside voxels, as a boolean grid."""
-        from scipy import ndimage
-
         labels, n = ndimage.label(self.inside)
         if n <= 1:
             return labels > 0
