@@ -24,6 +24,9 @@ from ..material.driver import MaterialDriver
 from ..material.export import write_glb
 from ..render import effects
 from ..render.scene import RenderSettings, SceneRenderer
+from . import effect_costs
+from .objective import Objective
+from .stiffness import STIFF
 
 
 def _emitters(capture: Capture) -> list[str]:
@@ -159,7 +162,8 @@ class Appearance:
         renderer = self._renderer(mesh, material, probe, geometry=False, settings=RenderSettings(spp=cfg.spp))
         self.decision = effects.decide(renderer, [v.target for v in probe],
                                        [v.mask if v.mask is not None else np.ones(v.target.shape[:2]) for v in probe],
-                                       _emitters(self.capture), cfg, self.overrides, self.measure)
+                                       _emitters(self.capture), cfg, self.overrides, self.measure,
+                                       probe=self._cost_probe(mesh, material, views))
         lobe_on = self.decision.specular and self.specular_off
         if not self.decision.specular:
             self.specular_off = self.specular_off or "specular" in material.trainable
@@ -181,6 +185,33 @@ class Appearance:
             renderer = self._renderer(mesh, material, views, geometry=False)
             self.driver.lobe_on(renderer, [v.target for v in views], self._masks(views), material, self.emit)
             self.seconds += time.perf_counter() - fit_start
+
+    def _cost_probe(self, mesh, material, views, n_views: int = 4):
+        """The effects decision's cost probe (effects.weigh_costs): geometry steps on
+        ``n_views`` spread views of ``mesh`` under each configuration, with the run's own
+        sample counts; None when effects are not measured."""
+        if not self.measure:
+            return None
+        c = self.config
+        ids = sorted(set(np.linspace(0, len(views) - 1, min(n_views, len(views))).round().astype(int).tolist()))
+        base = RenderSettings(spp=c.spp, max_depth=c.max_depth, integrator=c.integrator, hide_emitters=True,
+                              sppc=c.spp, sppp=c.sppp, sppi=0)
+        objectives = {}
+
+        def gradient(settings: RenderSettings, seed: int):
+            key = (settings.integrator, settings.max_depth, settings.sppi)
+            if key not in objectives:
+                objectives[key] = Objective(mesh, material, views, settings, lit_environment(self.capture, material),
+                                            tone=c.tone)
+            return objectives[key].loss_and_grad(mesh.vertices, ids, seed, geometry=True, material=False)[1]
+
+        def probe(decision, candidates):
+            # the stiff system's smoothing as the norm: the share is that of a Large Steps direction
+            return effect_costs.measure(gradient, {n: d.settings(base, geometry=True) for n, d in candidates.items()},
+                                        decision.settings(base, geometry=True), mesh.faces, mesh.n_vertices,
+                                        c.lambda_ or STIFF[0])
+
+        return probe
 
     def recheck(self, mesh, material, views, level: int) -> None:
         """After a geometry level, while the lobe is off: measure again. A coarse start can

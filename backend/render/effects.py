@@ -11,12 +11,12 @@ relative threshold:
 - **shadow / indirect-visibility gradients** (``sppi``): the share of direct light that the
   object blocks from itself, by shadow rays from the visible surface toward sampled emitters.
   Only for environment (non-delta) lighting: the projective integrators sample no shadow
-  boundaries of point lights, so under point lights alone the term is zero at direct light
-  (bit-identical gradients) and, with indirect bounces, small for its cost (the dragon, 3.3 %
-  self-shadowed: 3 % of the geometry gradient at about 35x the CPU time of a step, with the
-  octree guiding Mitsuba rebuilds every pass; unguided samples, the default since, cost far
-  less: ``SHADOW_SPPI``). Under an environment the threshold (5 %) weighs the same cost: a 1 %
-  self-shadowed blob gets 1.9 %.
+  boundaries of point lights, so under point lights alone the term is zero at direct light.
+- **accuracy per second** (environment light, with ``probe``): shadow gradients and one more
+  bounce are each timed in geometry steps and their share of the step's smoothed gradient is
+  measured against the decision without them (:mod:`backend.optimize.effect_costs`); each is
+  on when the bias it removes is worth the share of steps it costs. Point-lit captures keep the
+  need tests above (their calibrated figures were measured with them).
 - **specular lobe**: how much brighter the targets are, relative to diffuse shading, where a
   unit-specular render says highlights would be than in the pixels just around them.
 - **silhouette gradients**: projective integrators only while geometry is optimised.
@@ -25,7 +25,7 @@ relative threshold:
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 
 import drjit as dr
 import mitsuba as mi
@@ -36,8 +36,8 @@ from .scene import RenderSettings
 
 EFFECTS = ("indirect", "shadows", "specular", "silhouettes")
 # indirect-visibility samples per pixel with shadow gradients (unguided, RenderSettings.guiding):
-# about as accurate as Mitsuba's octree-guided 4, and the most that keeps a step within 2x of one
-# without shadow gradients (docs/notes/2026-11-24-hdr-shadow-gradients.md)
+# about as accurate as Mitsuba's octree-guided 4 and within 2x of a step without them
+# (docs/notes/2026-11-24-hdr-shadow-gradients.md)
 SHADOW_SPPI = 12
 
 
@@ -46,13 +46,11 @@ class EffectsConfig:
     tolerance: float = 0.01  # relative contribution below which an effect is dropped
     z_score: float = 3.0  # significance against Monte Carlo noise
     max_depth_probe: int = 6
-    # self-shadowing share (environment light) above which shadow gradients pay: the term is
-    # about as large, relative to the geometry gradient, as the share (blob 1 %: 1.9 %; dragon
-    # 3.3 %: 3 %) and cost 24-35x the CPU time of a step with the octree guiding (unguided: far less)
+    # self-shadowing share (environment light) above which shadow gradients are needed when no
+    # cost probe weighs them: the term is about as large, relative to the gradient, as the share
     shadow_threshold: float = 0.05
-    # targets over diffuse fit, in highlight regions: diffuse objects measure 0.92-0.99; a wrong
-    # diffuse-only decision costs accuracy (the glossy dragon on its carved start measured 1.07:
-    # -4 F1 points, albedo RMSE 0.26 vs 0.14) and saves no time, so the bar is just above noise
+    # targets over diffuse fit, in highlight regions: a wrong diffuse-only decision costs accuracy
+    # and saves no time, so the bar is just above what diffuse objects measure (docs/method.md)
     highlight_ratio: float = 1.03
     views: int = 4
     spp: int = 16
@@ -198,9 +196,38 @@ def measure_highlights(renderer, views, targets, masks, cfg: EffectsConfig, top:
     return float((hi_sum / hi_pred) / (ring_sum / ring_pred))
 
 
+def weigh_costs(decision: EffectsDecision, probe, cfg: EffectsConfig, overrides: dict[str, bool]) -> None:
+    """Shadow gradients and one more bounce, each kept when it pays per second of step.
+
+    ``probe(base, candidates)`` -> {name: cost} times geometry steps of the ``base`` decision
+    and of each candidate decision and measures the candidate's share of the gradient; a cost
+    has ``pays`` and ``to_json()`` (:class:`backend.optimize.effect_costs.EffectCost`)."""
+    base = decision if "shadows" in overrides else replace(decision, shadows=False)
+    candidates = {}
+    if "shadows" not in overrides:
+        candidates["shadows"] = replace(base, shadows=True)
+    if "indirect" not in overrides and base.max_depth < cfg.max_depth_probe:
+        candidates["bounce"] = replace(base, max_depth=base.max_depth + 1)
+    if not candidates:
+        return
+    costs = probe(base, candidates)
+    decision.measured["costs"] = {name: cost.to_json() for name, cost in costs.items()}
+    for name, cost in costs.items():
+        verdict = "pays" if cost.pays else "does not pay"
+        why = (f"{verdict}: {100 * cost.share:.1f}% of the gradient (z {cost.z:.1f}) "
+               f"for {cost.ratio:.2f}x the step time")
+        if name == "shadows":
+            decision.shadows = cost.pays
+            decision.reasons["shadows"] += f"; {why}"
+        else:
+            decision.max_depth += int(cost.pays)
+            decision.reasons["indirect"] += f"; bounce {base.max_depth + 1} {why}"
+
+
 def decide(renderer, targets, masks, emitters: list[str], cfg: EffectsConfig | None = None,
-           overrides: dict[str, bool] | None = None, measure: bool = True) -> EffectsDecision:
-    """Measure on a few views and decide which effects to simulate."""
+           overrides: dict[str, bool] | None = None, measure: bool = True, probe=None) -> EffectsDecision:
+    """Measure on a few views and decide which effects to simulate (``probe``: see
+    :func:`weigh_costs`; used under environment light)."""
     cfg = cfg or EffectsConfig()
     overrides = overrides or {}
     decision = EffectsDecision(emitters=emitters, forced=dict(overrides))
@@ -233,6 +260,8 @@ def decide(renderer, targets, masks, emitters: list[str], cfg: EffectsConfig | N
                         f"self-shadowing {100 * shadow:.1f}% vs threshold {100 * cfg.shadow_threshold:g}%"),
             "specular": f"highlight ratio {ratio:.2f} vs threshold {cfg.highlight_ratio}",
         }
+        if probe is not None and shadow is not None:
+            weigh_costs(decision, probe, cfg, overrides)
     else:
         decision.max_depth, decision.shadows, decision.specular = cfg.max_depth_probe, True, True
     if "indirect" in overrides:

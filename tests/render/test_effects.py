@@ -257,3 +257,42 @@ def test_simplification_keeps_a_diffuse_only_decision(tmp_path):
     assert np.all(material.values("specular") < 1e-5) and "specular" not in material.trainable
     app.recheck(coarser, material, views, level=1)  # still diffuse: measured again, stays off
     assert not app.decision.specular and np.all(material.values("specular") < 1e-5)
+
+
+def test_term_share_separates_a_bias_from_noise():
+    from backend.optimize.effect_costs import term_share
+
+    rng = np.random.default_rng(0)
+    g = rng.normal(size=(500, 3))
+    term = 0.1 * rng.normal(size=(500, 3))  # an effect worth 10 % of the gradient
+    base = [g + 0.05 * rng.normal(size=g.shape) for _ in range(3)]
+    with_term = [b + term + 0.02 * rng.normal(size=g.shape) for b in base]
+    share, noise, z = term_share(with_term, base)
+    assert share == pytest.approx(np.linalg.norm(term) / np.linalg.norm(g + term), rel=0.1) and z > 5
+    only_noise = [b + 0.1 * rng.normal(size=g.shape) for b in base]  # as large, but no bias
+    share, noise, z = term_share(only_noise, base)
+    assert z < 3 and noise > 0.05
+
+
+@pytest.mark.parametrize("lighting", ["env", "points"])
+def test_effects_weigh_cost_and_need_under_environment_light(tmp_path, lighting):
+    """Under an environment map the decision times geometry steps with and without shadow
+    gradients and one more bounce, measures each one's share of the gradient, and keeps it only
+    when it pays; point-lit captures keep the need tests."""
+    from backend.geometry.mesh import Mesh
+
+    args = ["--lighting", "env", "--env", "sky"] if lighting == "env" else []
+    app, mesh, material, views = _staged_appearance(tmp_path, *args)
+    estimate = Mesh(mesh.vertices * 1.06, mesh.faces)  # off the truth: the gradient is not noise
+    app.decide(estimate, material, views, reason="initial mesh")
+    costs = app.decision.measured.get("costs")
+    if lighting == "points":
+        assert costs is None
+        return
+    assert set(costs) == {"shadows", "bounce"}, app.decision.reasons
+    for name, cost in costs.items():
+        assert cost["seconds"] > 0 and cost["base_seconds"] > 0 and cost["ratio"] > 0.5
+        assert 0 <= cost["share"] < 2 and cost["noise"] >= 0 and np.isfinite(cost["z"])
+    assert app.decision.shadows == costs["shadows"]["pays"]
+    assert "x the step time" in app.decision.reasons["shadows"] and "bounce" in app.decision.reasons["indirect"]
+    assert app.history[-1]["measured"]["costs"] == costs  # the effects event carries both
