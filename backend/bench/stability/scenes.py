@@ -199,7 +199,7 @@ def sphere_init(radius: float, subdivisions: int = 3):
 def torus_init(faces: int):
     """A torus of about ``faces`` faces around the object."""
     def build(quick: bool):
-        from ._scenes import torus
+        from .._scenes import torus
 
         n_minor = max(8, int(round(np.sqrt(faces / 5))))
         return torus(0.45, 0.25, max(8, int(round(faces / 2 / n_minor))), n_minor)
