@@ -14,12 +14,16 @@ them: a diffuse-only and a specular-only pass of both (:mod:`backend.material.pa
 
 from __future__ import annotations
 
+import json
 import math
 from pathlib import Path
 
 import numpy as np
 
-from .. import fsio
+from .. import fsio, variant
+from ..capture.format import FILENAME
+from ..capture.images import read_linear_rgb, read_mask, write_image
+from ..capture.load import load_capture
 from ..errors import InputError, require
 from ..geometry.mesh import Mesh, load_mesh
 from ..metrics import geometry as geo
@@ -73,8 +77,6 @@ def prediction_path(path: str | Path) -> Path:
 
 def truth_capture(path: str | Path):
     """The capture behind ``--truth``, or None when it is a mesh file."""
-    from ..capture.format import FILENAME
-    from ..capture.load import load_capture
 
     path = Path(path)
     if path.is_dir() or path.name == FILENAME:
@@ -97,8 +99,6 @@ def _truth_mesh_path(truth: Path, capture) -> Path:
 
 def _view_metrics(capture, renders: Path, views: str) -> dict:
     """PSNR/SSIM of the renders in ``renders`` against the truth capture's ``views`` set."""
-    from ..capture.load import load_capture
-    from ..capture.images import read_linear_rgb, read_mask
 
     require(capture is not None, None, "--renders needs a ground-truth capture",
             f"give --truth a synthetic capture folder with ground_truth.{views}")
@@ -160,14 +160,8 @@ def evaluate(prediction: str | Path, truth: str | Path, samples: int = geo.DEFAU
 def _run_view_metrics(report: dict, run: Path, capture, gt: Mesh, samples: int, seed: int) -> None:
     """For a run folder: render its final display mesh (which carries the material) at the
     truth's held-out and relit views into RUN/renders/<set>/, and score them and its albedo."""
-    import json
-
-    from .. import variant
-    from ..capture.load import load_capture
-    from ..capture.images import write_image
-
     variant.choose()
-    from ..render.views import render_views
+    from ..render.views import render_views  # render/ needs the Mitsuba variant chosen first
 
     display = _mesh(run / json.loads((run / "snapshot.json").read_text())["mesh"], "display")
     if display.vertex_colors is not None and gt.vertex_colors is not None and "albedo" not in report:
@@ -199,7 +193,7 @@ def has_specular_lobe(mesh: Mesh) -> bool:
 
 def _material_of(mesh: Mesh):
     """The truth's material as a field, or None when its mesh does not carry one."""
-    from ..render.fields import VertexField
+    from ..render.fields import VertexField  # after variant.choose() (render/ needs it)
 
     if mesh.vertex_colors is None or not all(k in mesh.attributes for k in ("specular", "roughness")):
         return None
@@ -209,9 +203,7 @@ def _material_of(mesh: Mesh):
 def _component_metrics(display: Mesh, gt: Mesh, views, spp: int = 64, max_depth: int = 4) -> dict:
     """PSNR/SSIM of the diffuse-only and specular-only passes of ``display`` against the same
     passes of the truth, both rendered now with the same seeds at the ``views`` frames."""
-    from ..capture.images import read_mask
-    from ..material.passes import component_renders
-    from ..metrics.image import image_metrics
+    from ..material.passes import component_renders  # after variant.choose(), as above
     from ..render.views import display_field
 
     components = ("diffuse", "specular")
