@@ -36,7 +36,9 @@ def entry(row: dict) -> dict:
            "f1_005": None if row.get("f1_005") is None else round(row["f1_005"] / 100, 4),
            "novel_psnr": row.get("novel_psnr"), "relit_psnr": row.get("relit_psnr"),
            "peak_memory_mb": row.get("peak_mb"), "load_average": [row.get("load_before"), row.get("load_after")],
-           "runs": row.get("repeats", 1), "settings": row["knobs"]}
+           "runs": row.get("repeats", 1), "settings": row["knobs"],
+           # the run's levels and steps: optimize/plan.py predicts other captures' times from them
+           "iterations": row.get("iterations"), "levels": row.get("levels")}
     return out
 
 

@@ -97,6 +97,9 @@ def add_arguments(parser):
     parser.add_argument("--track-metrics", action="store_true",
                         help="with ground truth: metrics after every level (time not charged to the budget)")
     parser.add_argument("--variant", help="Mitsuba variant (default: automatic)")
+    parser.add_argument("--plan", action="store_true",
+                        help="measure this capture's step costs, print each preset's predicted time and exit "
+                             "without running (nothing is written to RUN)")
 
 
 OVERRIDES = ("init", "material", "effects", "initial_faces", "iterations", "seed", "max_size", "coarse_size", "views_per_step",
@@ -265,6 +268,8 @@ def run(args) -> int:
 
     if capture is not None:
         Appearance.check(capture, config)
+    if getattr(args, "plan", False):
+        return _print_plan(args, capture)
     folder = RunFolder.create(args.out, resume=args.resume, overwrite=args.overwrite)
     if not args.resume and getattr(args, "argv", None):
         folder.record_command(absolute_paths(args.argv, args))
@@ -273,7 +278,7 @@ def run(args) -> int:
         with reported(emit):
             emit("start", run=str(folder.path), capture=str(args.capture), settings=dataclasses.asdict(config))
             emit("variant", variant=chosen, llvm=os.environ.get("DRJIT_LIBLLVM_PATH"))
-            _preset_event(args, capture, emit)
+            _preset_event(args, capture, emit, config)
             if video is not None:
                 capture = video_capture(video, folder, args.resume, emit)
                 Appearance.check(capture, config)
@@ -282,15 +287,41 @@ def run(args) -> int:
         emit.close()
 
 
-def _preset_event(args, capture, emit) -> None:
+def _preset_configs(args, names) -> dict:
+    """{preset: its ReconstructConfig with this command line's options}."""
+    return {name: config_from_args(SimpleNamespace(**{**vars(args), "preset": name})) for name in names}
+
+
+def _print_plan(args, capture) -> int:
+    """--plan: each preset's predicted time on this capture (optimize/plan.py), printed; no run."""
+    from ..optimize.plan import capture_plan
+
+    require(capture is not None, args.capture, "--plan needs a capture folder",
+            "write the capture first (capture-from-video), then plan on it")
+    plan = capture_plan(capture, _preset_configs(args, PRESETS), calibrated())
+    print(plan.table())
+    print(f"{plan.line()} on this capture (step costs measured in {plan.costs.seconds:.1f} s)")
+    return 0
+
+
+def _preset_event(args, capture, emit, config) -> None:
     preset = choose_preset(args)
     expected = calibrated().get(preset, {})
-    # the calibration scene is point-lit: its time is no promise for an HDR-lit capture,
-    # whose steps can cost several times more (the ETA of the progress events is measured)
+    # expected_*: the calibration scene's figures (point-lit: no promise for an HDR-lit capture);
+    # predicted_minutes: this capture's own, from its measured step costs (optimize/plan.py)
     comparable = capture is not None and capture.environment is None
+    plan = None
+    if capture is not None:
+        from ..optimize.plan import capture_plan
+
+        plan = capture_plan(capture, {preset: config}, calibrated())
     emit("preset", preset=preset, chosen_for_budget=args.preset is None and args.time_budget is not None,
          expected_minutes=expected.get("expected_minutes") if comparable else None,
          expected_f1=expected.get("expected_f1") if comparable else None,
          calibrated_on=load_calibration().get("scene"),
-         note=None if comparable else "calibrated on a point-lit scene; this capture is lit by an "
-                                      "environment map: the time comes from its own measured steps (eta_s)")
+         predicted_minutes=None if plan is None else round(plan.presets[preset].minutes, 2),
+         plan=None if plan is None else {**plan.presets[preset].to_json(), "costs": plan.costs.to_json()},
+         note=None if comparable else "calibrated on a point-lit scene; predicted_minutes is this capture's "
+                                      "own, from its measured step costs" if plan is not None else
+                                      "calibrated on a point-lit scene; the time comes from this capture's "
+                                      "measured steps (eta_s)")

@@ -1,0 +1,362 @@
+"""The plan: what each quality preset will cost on *this* capture, measured before optimising.
+
+Model. A run's time is its steps times what a step costs on this capture, plus a fixed part:
+
+    step(size, faces) = k * g(p, f) + (2 V / eval_every) * r(p, f)
+    g, r, m(p, f)     = a + b * p + c * f      (least squares over the measured points, each >= 0)
+
+``g`` is one view's forward+backward geometry step (``Objective.loss_and_grad``), ``r`` one
+view's forward render at half the validation samples (a validation loss renders each of its
+V views twice every ``eval_every`` steps), ``m`` one view's material-only gradient step;
+``p`` is the pixels of one view at the level's size (the capture's aspect, capped at its
+resolution), ``f`` the faces, ``k`` the preset's views per step. They are timed on this
+capture (its cameras, lights or environment map, image sizes) with the render settings the
+run's geometry steps use, after one untimed step that compiles the kernels, on icospheres
+fitted to the capture (``init.sphere_mesh``) at the smallest and the largest face counts the
+presets' levels reach (the cost of a step depends on the face count, not on the shape), at
+the smallest and the largest image size: four points, three coefficients.
+
+A preset's levels follow its settings: level l renders at ``level_size(l)`` and has the faces
+the face budget gives after l subdivisions (``FaceBudget``: x4, capped at D, D grown);
+``levels`` and ``steps`` per level are those the preset took on the calibration scene
+(``presets.json``: ``levels`` and ``iterations`` of the calibration run; levels end on their
+own convergence), else ``max_levels`` levels of ``level_iterations`` steps. With the staged
+material (the default), every level is followed by one material cycle of
+``FitSettings.iterations`` one-view material steps plus a full-view evaluation, geometry
+convergence by ``FINAL_MATERIAL_CYCLES`` cycles four times as long at the finest size, and
+``POLISH_ROUNDS`` polish rounds of ``POLISH_STEPS`` geometry steps each, each followed by a
+refinement cycle. ``FIXED_SECONDS`` covers the process start, loading, initialisation and the
+effects decision. A time budget or an iteration cap cuts the prediction where the run would stop.
+
+What it leaves out: a re-mesh (Poisson rebuild) between levels, and the effects decision
+changing its mind mid-run (the settings timed are those it chose at the start, or the base
+settings when it has not run yet). docs/results.md compares predicted and measured times."""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..geometry.simplify import FaceBudget
+from .schedule import level_size
+from .views import frame_size, validation_views
+
+FIXED_SECONDS = 8.0  # process start, capture loading, initial mesh, effects decision (measured: docs/results.md)
+FINAL_MATERIAL_CYCLES = 4  # diffuse and specular stages on the converged geometry, two cycles each
+POLISH_ROUNDS = 1
+POLISH_STEPS = 130  # (polish_patience + polish_window) x eval_every: the shortest round that can end
+MATERIAL_ITERATIONS = 40  # FitSettings.iterations
+MAX_PROBE_FACES = 20480  # larger face counts are extrapolated (a probe step there costs seconds)
+
+
+@dataclass
+class Point:
+    """One measured point: seconds per view of each kind of step."""
+
+    size: int
+    pixels: int
+    faces: int
+    gradient: float
+    forward: float
+    material: float
+
+    def to_json(self) -> dict:
+        return {k: round(v, 4) if isinstance(v, float) else v for k, v in dataclasses.asdict(self).items()}
+
+
+@dataclass
+class StepCosts:
+    """Seconds per view as a + b * pixels + c * faces, for each kind of step."""
+
+    points: list[Point]
+    coefficients: dict[str, tuple[float, float, float]] = field(default_factory=dict)
+    seconds: float = 0.0  # what measuring took
+
+    def __post_init__(self):
+        if not self.coefficients:
+            self.coefficients = {k: fit([(p.pixels, p.faces, getattr(p, k)) for p in self.points])
+                                 for k in ("gradient", "forward", "material")}
+
+    def __call__(self, kind: str, pixels: float, faces: float) -> float:
+        a, b, c = self.coefficients[kind]
+        return a + b * pixels + c * faces
+
+    def to_json(self) -> dict:
+        return {"points": [p.to_json() for p in self.points], "seconds": round(self.seconds, 2),
+                "model": {k: [float(f"{x:.4g}") for x in v] for k, v in self.coefficients.items()}}
+
+
+def fit(samples: list[tuple[float, float, float]]) -> tuple[float, float, float]:
+    """(a, b, c) of t ~ a + b p + c f by least squares, with b, c >= 0 and a >= 0 (a term that
+    comes out negative is dropped and the rest refitted). Fewer than three distinct points fit
+    fewer terms."""
+    p, f, t = (np.array(x, np.float64) for x in zip(*samples))
+    terms = [0, 1, 2]
+    if len(set(p.tolist())) < 2:
+        terms.remove(1)
+    if len(set(f.tolist())) < 2:
+        terms.remove(2)
+    columns = np.stack([np.ones_like(p), p, f], 1)
+    while True:
+        coef = np.zeros(3)
+        coef[terms] = np.linalg.lstsq(columns[:, terms], t, rcond=None)[0]
+        negative = [i for i in terms if coef[i] < 0]
+        if not negative or len(terms) == 1:
+            return tuple(float(max(x, 0.0)) for x in coef)
+        terms.remove(min(negative, key=lambda i: coef[i]))
+
+
+# -- the levels a preset goes through ------------------------------------------------------------------
+@dataclass
+class LevelPlan:
+    level: int
+    size: int
+    faces: int
+    steps: int
+    seconds: float = 0.0
+
+    def to_json(self) -> dict:
+        return {**dataclasses.asdict(self), "seconds": round(self.seconds, 1)}
+
+
+def levels(config, entry: dict | None = None) -> tuple[list[LevelPlan], str]:
+    """The levels (size, faces, steps) a run of ``config`` goes through, and where the step
+    counts come from: the calibration ``entry`` of its preset (levels and iterations of the
+    calibration run) or the config's own limits."""
+    c = config
+    n, per_level = c.max_levels, c.level_iterations
+    source = "config: max_levels x level_iterations"
+    if entry and entry.get("levels") and entry.get("iterations"):
+        n = min(int(entry["levels"]), c.max_levels)
+        per_level = min(c.level_iterations, max(c.min_level_iterations, round(entry["iterations"] / entry["levels"])))
+        source = "calibration run: its levels and steps per level"
+    budget = FaceBudget(c.initial_faces, growth=c.face_growth)
+    faces, out = c.initial_faces, []
+    total = 0
+    for level in range(n):
+        steps = per_level if c.iterations is None else max(0, min(per_level, c.iterations - total))
+        if steps == 0:
+            break
+        out.append(LevelPlan(level, level_size(level, c.coarse_size, c.max_size), faces, steps))
+        total += steps
+        if budget.limit > c.max_faces:
+            break
+        faces = budget.next_target(faces)  # subdivided 1-to-4, simplified to the budget (which then grows)
+    return out, source
+
+
+# -- what a preset costs ---------------------------------------------------------------------------------
+@dataclass
+class PresetPlan:
+    preset: str
+    levels: list[LevelPlan]
+    steps_from: str
+    geometry_s: float
+    material_s: float
+    polish_s: float
+    fixed_s: float
+    budget_s: float | None = None
+    expected_f1: float | None = None  # on the calibration scene
+
+    @property
+    def seconds(self) -> float:
+        total = self.geometry_s + self.material_s + self.polish_s + self.fixed_s
+        return min(total, self.budget_s) if self.budget_s else total
+
+    @property
+    def minutes(self) -> float:
+        return self.seconds / 60.0
+
+    def to_json(self) -> dict:
+        return {"preset": self.preset, "predicted_minutes": round(self.minutes, 2),
+                "geometry_s": round(self.geometry_s, 1), "material_s": round(self.material_s, 1),
+                "polish_s": round(self.polish_s, 1), "fixed_s": round(self.fixed_s, 1),
+                "levels": [lv.to_json() for lv in self.levels], "steps_from": self.steps_from,
+                "expected_f1": self.expected_f1}
+
+
+def predict(name: str, config, costs: StepCosts, pixels_at, n_views: int, staged: bool,
+            entry: dict | None = None) -> PresetPlan:
+    """The predicted time of ``config`` on the capture whose steps ``costs`` measured
+    (``pixels_at(size)``: one view's pixels at a level size)."""
+    c = config
+    plan, source = levels(c, entry)
+    val = len(validation_views(n_views, c.validation_views))
+    geometry = material = 0.0
+    for lv in plan:
+        p = pixels_at(lv.size)
+        step = c.views_per_step * costs("gradient", p, lv.faces) + 2 * val * costs("forward", p, lv.faces) / c.eval_every
+        lv.seconds = lv.steps * step + 2 * val * costs("forward", p, lv.faces)
+        geometry += lv.seconds
+        if staged:
+            material += cycle_seconds(costs, p, lv.faces, n_views)
+    polish = 0.0
+    if staged and plan:
+        last = plan[-1]
+        p = pixels_at(c.max_size)
+        material += FINAL_MATERIAL_CYCLES * cycle_seconds(costs, p, last.faces, n_views, scale=4)
+        step = c.views_per_step * costs("gradient", p, last.faces) + 2 * val * costs("forward", p, last.faces) / c.eval_every
+        steps = min(POLISH_STEPS, c.level_iterations * c.polish_length)
+        polish = POLISH_ROUNDS * (steps * step + cycle_seconds(costs, p, last.faces, n_views, scale=4))
+    return PresetPlan(name, plan, source, geometry, material, polish, FIXED_SECONDS, c.time_budget_s,
+                      (entry or {}).get("expected_f1"))
+
+
+def cycle_seconds(costs: StepCosts, pixels: float, faces: int, n_views: int, scale: int = 1) -> float:
+    """One material cycle: its one-view material steps and a full-view evaluation."""
+    return scale * MATERIAL_ITERATIONS * costs("material", pixels, faces) + n_views * costs("forward", pixels, faces)
+
+
+# -- measuring ------------------------------------------------------------------------------------------
+def probe_points(configs, pixels_at) -> tuple[list[int], list[int]]:
+    """The image sizes and face counts to time: the smallest and largest any level reaches
+    (face counts as icosphere sizes, 20 x 4^n, nearest in ratio, at most MAX_PROBE_FACES)."""
+    sizes, faces = set(), set()
+    for config in configs:
+        plan, _ = levels(config)
+        sizes.update(lv.size for lv in plan)
+        faces.update(lv.faces for lv in plan)
+    by_pixels = {}
+    for s in sorted(sizes):
+        by_pixels.setdefault(pixels_at(s), s)  # sizes above the capture's resolution render the same
+    sizes = sorted(by_pixels.values())
+    spheres = sorted({min(MAX_PROBE_FACES, 20 * 4 ** max(2, round(np.log(f / 20) / np.log(4))))
+                      for f in (min(faces), max(faces))})
+    return sorted({sizes[0], sizes[-1]}), spheres
+
+
+def measure(capture, viewset, settings, sizes: list[int], faces: list[int], tone: str = "log",
+            validation_spp: int = 16, repeats: int = 2, spec: str = "auto") -> StepCosts:
+    """Time one view's geometry step, validation render and material step at every (size,
+    faces) of ``sizes`` x ``faces`` on this capture with ``settings`` (RenderSettings of the
+    geometry steps); ``spec``: the constant material timed (the --material of a constant run)."""
+    import drjit as dr
+
+    from ..geometry.init.sphere import sphere_mesh
+    from ..material import factory
+    from .appearance import lit_environment
+    from .objective import Objective
+
+    start = time.perf_counter()
+    material = factory.create(spec if spec.startswith("known:") else "auto")
+    environment = lit_environment(capture, material)
+    view = len(viewset) // 2
+    points = []
+    for n_faces in faces:
+        mesh = sphere_mesh(capture, n_faces)
+        for size in sizes:
+            views = viewset.at(size)[view:view + 1]
+            objective = Objective(mesh, material, views, settings, environment, tone=tone)
+
+            def timed(call) -> float:
+                times = []
+                for seed in range(repeats):
+                    t0 = time.perf_counter()
+                    call(seed)
+                    times.append(time.perf_counter() - t0)
+                return float(np.median(times))
+
+            objective.loss_and_grad(mesh.vertices, [0], 7, geometry=True, material=True)  # compiles
+            gradient = timed(lambda s: objective.loss_and_grad(mesh.vertices, [0], s, geometry=True, material=True))
+            forward = timed(lambda s: objective.loss(mesh.vertices, [0], s, max(1, validation_spp // 2)))
+            objective.loss_and_grad(mesh.vertices, [0], 7, geometry=False, material=True)
+            mat = timed(lambda s: objective.loss_and_grad(mesh.vertices, [0], s, geometry=False, material=True))
+            w, h = views[0].camera.width, views[0].camera.height
+            points.append(Point(size, w * h, mesh.n_faces, gradient, forward, mat))
+            del objective
+            dr.flush_malloc_cache()
+    return StepCosts(points, seconds=time.perf_counter() - start)
+
+
+def pixels_for(viewset):
+    """One view's pixels at a level size (the middle view, as measured)."""
+    camera = viewset.views[len(viewset) // 2].camera
+
+    def pixels_at(size: int) -> int:
+        w, h = frame_size(camera, size)
+        return w * h
+
+    return pixels_at
+
+
+@dataclass
+class Plan:
+    costs: StepCosts
+    presets: dict[str, PresetPlan]
+    settings: dict
+
+    def to_json(self) -> dict:
+        return {"costs": self.costs.to_json(), "render_settings": self.settings,
+                "presets": {n: p.to_json() for n, p in self.presets.items()}}
+
+    def line(self) -> str:
+        """'Draft ≈ 3 min, Balanced ≈ 14 min, Final ≈ 40 min'"""
+        return ", ".join(f"{n.capitalize()} \u2248 {minutes_text(p.minutes)}" for n, p in self.presets.items())
+
+    def table(self) -> str:
+        rows = [("preset", "levels", "sizes px", "faces", "steps", "predicted min", "F1 (calibration)")]
+        for name, p in self.presets.items():
+            sizes = sorted({lv.size for lv in p.levels})
+            rows.append((name, str(len(p.levels)), f"{sizes[0]}-{sizes[-1]}" if sizes else "-",
+                         f"{p.levels[0].faces}-{p.levels[-1].faces}" if p.levels else "-",
+                         str(sum(lv.steps for lv in p.levels)), f"{p.minutes:.1f}",
+                         "-" if p.expected_f1 is None else f"{p.expected_f1:.3f}"))
+        widths = [max(len(r[i]) for r in rows) for i in range(len(rows[0]))]
+        return "\n".join("  ".join(x.ljust(w) for x, w in zip(r, widths)).rstrip() for r in rows)
+
+
+def minutes_text(minutes: float) -> str:
+    return f"{minutes:.1f} min" if minutes < 10 else f"{minutes:.0f} min"
+
+
+def make_plan(capture, configs: dict, settings, staged: bool, calibration: dict | None = None,
+              viewset=None) -> Plan:
+    """Measure this capture's step costs and predict every preset of ``configs`` ({name:
+    ReconstructConfig}); ``settings``: the geometry steps' RenderSettings; ``calibration``:
+    {preset: calibration entry}."""
+    from .views import ViewSet
+
+    largest = max(c.max_size for c in configs.values())
+    viewset = viewset or ViewSet(capture, largest)
+    pixels_at = pixels_for(viewset)
+    sizes, faces = probe_points(configs.values(), pixels_at)
+    first = next(iter(configs.values()))
+    spec = first.material if isinstance(first.material, str) else "auto"
+    costs = measure(capture, viewset, settings, sizes, faces, first.tone, first.validation_spp, spec=spec)
+    presets = {name: predict(name, c, costs, pixels_at, len(viewset), staged, (calibration or {}).get(name))
+               for name, c in configs.items()}
+    return Plan(costs, presets, dataclasses.asdict(settings))
+
+
+# -- for the reconstruct command -----------------------------------------------------------------------
+def geometry_settings(config) -> "RenderSettings":
+    """The geometry steps' render settings before the effects decision has run: the config's
+    base settings with the effects that ``--effects`` forces (measured ones stay at the base:
+    direct light, no shadow gradients)."""
+    from ..render import effects
+    from ..render.scene import RenderSettings
+
+    c = config
+    base = RenderSettings(spp=c.spp, max_depth=c.max_depth, integrator=c.integrator, hide_emitters=True,
+                          sppc=c.spp, sppp=c.sppp, sppi=0)
+    try:
+        _, forced = effects.parse_effects(c.effects)
+    except ValueError:
+        return base
+    if not forced:
+        return base
+    decision = effects.EffectsDecision(max_depth=max(c.max_depth, 3) if forced.get("indirect") else 2,
+                                       shadows=bool(forced.get("shadows")),
+                                       silhouettes=forced.get("silhouettes", True))
+    return decision.settings(base, geometry=True)
+
+
+def capture_plan(capture, configs: dict, calibration: dict | None = None) -> Plan:
+    """``make_plan`` for the reconstruct command: ``configs`` {preset: ReconstructConfig}, the
+    staged material when the first config asks for it."""
+    first = next(iter(configs.values()))
+    return make_plan(capture, configs, geometry_settings(first), staged=first.material == "staged",
+                     calibration=calibration)
