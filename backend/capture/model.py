@@ -90,10 +90,13 @@ class Environment:
     strength: float = 1.0
     rotation_z_deg: float = 0.0
     provenance: str = "given"  # or "estimated" (lighting alignment, backend.lighting)
+    # the map's pixels held in memory (H, W, 3), read instead of ``path`` (a map being fitted:
+    # backend.lighting.estimate; ``path`` is where it is written)
+    pixels: np.ndarray | None = field(default=None, repr=False, compare=False)
 
     def scaled(self, factor: float) -> "Environment":
         """The same map ``factor`` times as bright (a fitted light factor applied)."""
-        return Environment(self.path, self.strength * factor, self.rotation_z_deg, self.provenance)
+        return Environment(self.path, self.strength * factor, self.rotation_z_deg, self.provenance, self.pixels)
 
     def to_json(self, root: Path) -> dict:
         out = {"path": _rel(self.path, root), "strength": self.strength, "rotation_z_deg": self.rotation_z_deg}

@@ -54,6 +54,9 @@ def add_arguments(parser):
     from ..video.inputs import add_lighting_arguments
 
     add_lighting_arguments(parser)
+    from ..lighting.setup import HELP as LIGHTING_HELP, MODES as LIGHTING_MODES
+
+    parser.add_argument("--lighting", choices=LIGHTING_MODES, help=LIGHTING_HELP)
     parser.add_argument("--out", required=True, type=Path, metavar="RUN", help="run folder")
     parser.add_argument("--preset", choices=sorted(PRESETS),
                         help=f"quality preset (default {DEFAULT}; with --time-budget, the most accurate preset whose "
@@ -198,30 +201,6 @@ def video_capture(inputs, folder, resume: bool, emit):
     return load_capture(path)
 
 
-def relight(capture, args):
-    """The capture lit by ``--env`` (strength and rotation as given) when PATH is a capture folder."""
-    if args.env is None:
-        require(args.env_strength is None, None, "--env-strength needs --env", "give --env HDR as well")
-        return capture
-    from ..capture.model import Environment
-    from ..capture.validate import validate_environment
-
-    strength = 1.0 if args.env_strength is None else args.env_strength
-    require(math.isfinite(strength) and strength > 0, None, f"--env-strength must be above 0 (got {strength})",
-            "give the map's strength, e.g. 1")
-    rotation = args.env_rotation or 0.0
-    capture.environment = Environment(Path(args.env).resolve(), strength, rotation)
-    validate_environment(capture)
-    return capture
-
-
-def require_light(capture, source) -> None:
-    """A capture lit by nothing renders black and learns nothing: stop before any work."""
-    require(capture.environment is not None or capture.has_point_lights, source,
-            "the capture has no light source (no environment map, no point lights)",
-            "give the HDR map of the lighting with --env HDR (in Blender: Import Environment Map)")
-
-
 PATH_OPTIONS = ("--out", "--masks", "--env", "--init")
 
 
@@ -249,6 +228,7 @@ def _absolute(option: str, value: str) -> str:
 def run(args) -> int:
     # Mitsuba loads (and its variant is chosen) only once a run starts, not for --help
     from ..capture.load import load_capture
+    from ..lighting.setup import resolve_lighting
     from ..material.constant import parse_spec
     from ..optimize.run_folder import RunFolder
 
@@ -257,11 +237,9 @@ def run(args) -> int:
     config = config_from_args(args)
     parse_spec(config.material)  # bad input is reported before anything is written
     video = video_inputs(args)
-    capture = relight(load_capture(args.capture), args) if video is None else None
-    if capture is not None:
-        require_light(capture, args.capture)
-    elif video.environment is None:
-        require_light(SimpleNamespace(environment=None, has_point_lights=False), args.capture)
+    capture = load_capture(args.capture) if video is None else None
+    config.lighting = resolve_lighting(capture, args.lighting, args.env, args.env_strength, args.env_rotation,
+                                       args.capture, video_light=video is not None and video.environment is not None)
     chosen = variant.choose(args.variant)
     from ..optimize.appearance import Appearance
     from ..optimize.run import reconstruct, reported

@@ -90,9 +90,10 @@ class MaterialDriver:
         self.labels = face_labels(mesh, cameras, self.label_images, self._images, self._masks, self.n_materials)
         material.set_labels(self.labels.labels, self.labels.n_materials)
 
-    def cycle(self, renderer, images, masks, material: MeshColorMaterial, emit=None) -> FitResult:
-        """Run the schedule's current stage once on ``renderer`` (built with ``material.field``)."""
-        result = run_cycle(self.schedule, renderer, images, masks, material, self.settings, emit)
+    def cycle(self, renderer, images, masks, material: MeshColorMaterial, emit=None, lighting=None) -> FitResult:
+        """Run the schedule's current stage once on ``renderer`` (built with ``material.field``);
+        ``lighting``, an estimated environment, is fitted with it."""
+        result = run_cycle(self.schedule, renderer, images, masks, material, self.settings, emit, lighting=lighting)
         self.results.append(result)
         return result
 

@@ -97,29 +97,34 @@ def _restore(renderer, material: MeshColorMaterial, saved: tuple[dict, float]) -
 
 
 def run_cycle(schedule: MaterialSchedule, renderer, images, weights, material: MeshColorMaterial,
-              settings: FitSettings | None = None, emit=None, loss_spp: int = 0) -> FitResult:
+              settings: FitSettings | None = None, emit=None, loss_spp: int = 0, lighting=None) -> FitResult:
     """Run the schedule's current stage once, then report the full-view loss to the schedule.
-    A stage that raises that loss (a diverging fit) is undone: the material never gets worse."""
+    A stage that raises that loss (a diverging fit) is undone: the material never gets worse.
+    ``lighting`` (an estimated environment) is fitted with the material and undone with it."""
     settings = settings or FitSettings()
     stage = schedule.stage
     if stage == "done":
         return FitResult("done")
     before = evaluate_loss(renderer, images, weights, material, loss_spp)
     saved = _saved(material)
+    saved_light = None if lighting is None else lighting.latent.copy()
     if stage == "constant":
-        result = fit_constants(renderer, images, weights, material, settings, emit)
+        result = fit_constants(renderer, images, weights, material, settings, emit, lighting=lighting)
     elif stage == "diffuse":
-        result = fit_diffuse(renderer, images, weights, material, settings, light=not schedule.light_fitted,
-                             emit=emit)
+        result = fit_diffuse(renderer, images, weights, material, settings,
+                             light=not schedule.light_fitted and lighting is None, emit=emit, lighting=lighting)
         schedule.light_fitted = True
     elif stage == "specular":
         spec = settings if settings.variance_weight else dataclasses.replace(settings, variance_weight=0.1)
         check = set(check_views(len(images), settings.check_every))
         fitted = [v for v in range(len(images)) if v not in check] if check else None
-        result = fit_specular(renderer, images, weights, material, spec, emit=emit, views=fitted)
+        result = fit_specular(renderer, images, weights, material, spec, emit=emit, views=fitted, lighting=lighting)
     after = evaluate_loss(renderer, images, weights, material, loss_spp)
     if not after <= before:
         _restore(renderer, material, saved)
+        if lighting is not None:
+            lighting.latent = saved_light
+            lighting.fit().reset(renderer)
         result.reverted, after = True, before
     schedule.report(after, result.reverted)
     return result

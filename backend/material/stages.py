@@ -170,10 +170,11 @@ class LightFactor:
 
 def fit(renderer, images: list[np.ndarray], weights: list[np.ndarray] | None, material: MeshColorMaterial,
         names: list[str], settings: FitSettings, light: bool = False, stage: str = "fit",
-        emit=None, views: list[int] | None = None) -> FitResult:
+        emit=None, views: list[int] | None = None, lighting=None) -> FitResult:
     """Adam on the named channels' latents (and log brightness when ``light``), minimising the
     weighted mean squared error of renders against ``images`` (only the ``views`` among them,
-    when given) plus the variance penalty."""
+    when given) plus the variance penalty. ``lighting`` (an estimated environment,
+    backend.lighting.estimate) adds the map's latents and its smoothness penalty to the fit."""
     start = time.time()
     weights = _weights(weights, images)
     opt = mi.ad.Adam(lr=settings.lr, mask_updates=True)
@@ -185,6 +186,11 @@ def fit(renderer, images: list[np.ndarray], weights: list[np.ndarray] | None, ma
         opt["light"] = mi.Float(math.log(material.light_factor))
     else:
         factor = None
+    env = lighting.fit() if lighting is not None else None
+    if env is not None and env.present(renderer):
+        opt[env.NAME] = env.initial()
+    else:
+        env = None
     targets = [_tensor(img[..., :3]) for img in images]
     w = [_tensor(_weights3(x)) for x in weights]
     norms = [max(float(np.sum(x)), 1e-6) for x in weights]
@@ -196,7 +202,8 @@ def fit(renderer, images: list[np.ndarray], weights: list[np.ndarray] | None, ma
     for it in range(settings.iterations):
         decay = settings.lr_decay ** (it / max(settings.iterations - 1, 1))
         opt.set_learning_rate({**{n: settings.lr * decay for n in names},
-                               **({"light": settings.light_lr * decay} if factor is not None else {})})
+                               **({"light": settings.light_lr * decay} if factor is not None else {}),
+                               **({env.NAME: lighting.lr * decay} if env is not None else {})})
         material.load_parameters({n: opt[n] for n in names})
         loss = 0.0
         count = min(settings.views_per_step, len(pool))
@@ -206,6 +213,8 @@ def fit(renderer, images: list[np.ndarray], weights: list[np.ndarray] | None, ma
             v = int(order.pop())
             if factor is not None:  # per view: the last backward pass used up the graph from log k
                 factor.set(opt["light"])
+            if env is not None:
+                env.apply(renderer, opt[env.NAME])
             img = renderer.render(v, seed=settings.seed * 100003 + it * 17 + v,
                                   spp=settings.spp or None, params=material.attach(renderer.params))
             view_loss = dr.sum(w[v] * pixel_loss(img - targets[v], settings.robust)).array / (norms[v] * count)
@@ -219,6 +228,8 @@ def fit(renderer, images: list[np.ndarray], weights: list[np.ndarray] | None, ma
         if settings.smoothness_weight:
             for n in names:
                 penalty += settings.smoothness_weight * smoothness_penalty(material, n, edges)
+        if env is not None:
+            penalty += env.penalty(opt[env.NAME])
         dr.backward(penalty, flags=dr.ADFlag.Default | dr.ADFlag.AllowNoGrad)
         opt.step()
         result.losses.append(loss + float(penalty[0]))
@@ -226,6 +237,8 @@ def fit(renderer, images: list[np.ndarray], weights: list[np.ndarray] | None, ma
             emit("progress", stage=f"material:{stage}", iteration=it + 1, iterations=settings.iterations,
                  loss=result.losses[-1], faces=material.n_faces)
     material.load_parameters({n: dr.detach(opt[n]) for n in names})
+    if env is not None:
+        env.finish(renderer, opt[env.NAME])
     if factor is not None:
         result.light_factor = factor.finish(opt["light"])
     else:
@@ -311,7 +324,8 @@ def highlight_masks(renderer, images, weights, material: MeshColorMaterial, thre
 
 
 def fit_constants(renderer, images, weights, material: MeshColorMaterial, settings: FitSettings | None = None,
-                  emit=None, names: tuple[str, ...] | None = None, stage: str = "constant") -> FitResult:
+                  emit=None, names: tuple[str, ...] | None = None, stage: str = "constant",
+                  lighting=None) -> FitResult:
     """Stage 1: one albedo, specular and roughness per material (or only the ``names`` channels,
     the others held)."""
     settings = settings or FitSettings()
@@ -319,7 +333,7 @@ def fit_constants(renderer, images, weights, material: MeshColorMaterial, settin
     for name in names:
         material.make_constant(name)
     weights = silhouette_weights(_weights(weights, images), settings.edge_erosion)
-    return fit(renderer, images, weights, material, list(names), settings, stage=stage, emit=emit)
+    return fit(renderer, images, weights, material, list(names), settings, stage=stage, emit=emit, lighting=lighting)
 
 
 def fit_lobe(renderer, images, weights, material: MeshColorMaterial, settings: FitSettings | None = None,
@@ -330,7 +344,7 @@ def fit_lobe(renderer, images, weights, material: MeshColorMaterial, settings: F
 
 
 def fit_diffuse(renderer, images, weights, material: MeshColorMaterial, settings: FitSettings | None = None,
-                light: bool = False, emit=None) -> FitResult:
+                light: bool = False, emit=None, lighting=None) -> FitResult:
     """Stage 2: mesh-color albedo (initialised from the constants), highlights masked out;
     ``light`` also fits the environment brightness factor (the first texture round)."""
     settings = settings or FitSettings()
@@ -339,13 +353,15 @@ def fit_diffuse(renderer, images, weights, material: MeshColorMaterial, settings
     masks = highlight_masks(renderer, images, weights, material, settings.highlight_threshold, settings.spp)
     kept = [np.asarray(w, np.float32) * (~m) for w, m in zip(weights, masks)]
     obj = sum(float((np.asarray(w) > 0).sum()) for w in weights)
-    result = fit(renderer, images, kept, material, ["albedo"], settings, light=light, stage="diffuse", emit=emit)
+    result = fit(renderer, images, kept, material, ["albedo"], settings, light=light, stage="diffuse", emit=emit,
+                 lighting=lighting)
     result.highlight_share = sum(float(m.sum()) for m in masks) / max(obj, 1.0)
     return result
 
 
 def fit_specular(renderer, images, weights, material: MeshColorMaterial, settings: FitSettings | None = None,
-                 spatial_roughness: bool = False, emit=None, views: list[int] | None = None) -> FitResult:
+                 spatial_roughness: bool = False, emit=None, views: list[int] | None = None,
+                 lighting=None) -> FitResult:
     """Stage 3: mesh-color specular with the variance penalty; roughness per material (or mesh
     colors with ``spatial_roughness``); albedo refined, highlights included; fitted to the
     ``views`` only, when given."""
@@ -356,4 +372,4 @@ def fit_specular(renderer, images, weights, material: MeshColorMaterial, setting
         material.make_spatial("roughness")
     weights = silhouette_weights(_weights(weights, images), settings.edge_erosion)
     return fit(renderer, images, weights, material, ["albedo", "specular", "roughness"], settings,
-               stage="specular", emit=emit, views=views)
+               stage="specular", emit=emit, views=views, lighting=lighting)

@@ -19,6 +19,8 @@ import numpy as np
 
 from ..capture.model import Capture
 from ..errors import InputError
+from ..lighting.estimate import FILENAME as ESTIMATED_MAP
+from ..lighting.estimate import EstimatedEnvironment
 from ..material import factory
 from ..material.driver import MaterialDriver
 from ..material.export import write_glb
@@ -42,6 +44,39 @@ class Appearance:
         self.specular_off = False  # the diffuse-only decision took the specular lobe out of training
         self.history: list[dict] = []
         self.seconds = 0.0
+        self.lighting: EstimatedEnvironment | None = None  # --lighting estimate: the fitted map
+
+    # -- lighting ----------------------------------------------------------------------------------
+    def start_lighting(self, folder, resume: bool = False) -> None:
+        """``--lighting estimate``: the capture's environment becomes the fitted map (from what
+        the frames show of the background, or the map a resumed run wrote to ``folder``)."""
+        if self.config.lighting != "estimate":
+            return
+        path = folder / ESTIMATED_MAP
+        self.lighting = (EstimatedEnvironment.load(path) if resume and path.is_file()
+                         else EstimatedEnvironment.initial(self.capture, path))
+        self.capture.environment = self.lighting.environment()
+        if self.driver is None:
+            self.emit("warning", message="--lighting estimate fits the map in the material stages of "
+                                         "--material staged: this run keeps the initial map")
+        self._lighting_event("initial")
+
+    def _lighting_event(self, when: str, stage: str | None = None) -> None:
+        report = self.lighting.report()
+        self.emit("lighting", when=when, stage=stage, model="estimate", resolution=report["resolution"],
+                  initial=report["initial"], scale_convention=report["scale_convention"],
+                  mean_radiance=report["mean_radiance"],
+                  albedo_scale=report["albedo_scales"][-1] if report["albedo_scales"] else None)
+
+    def write_lighting(self, folder) -> None:
+        """The fitted map as ``folder``/environment.exr (atomic; with every snapshot)."""
+        if self.lighting is not None:
+            self.lighting.write(folder / ESTIMATED_MAP)
+
+    def lighting_report(self) -> dict:
+        if self.lighting is not None:
+            return self.lighting.report()
+        return {"model": "captured", "emitters": _emitters(self.capture)}
 
     @staticmethod
     def check(capture: Capture, config):
@@ -98,8 +133,16 @@ class Appearance:
         start = time.perf_counter()
         stage_before = self.driver.stage
         self.emit("stage", stage=f"material:{stage_before}", level=level, faces=mesh.n_faces)
+        if self.lighting is not None:
+            self.lighting.at_stage(stage_before)  # coarse to fine: the stage's map resolution
+            self.capture.environment = self.lighting.environment()
         renderer = self._renderer(mesh, material, views, geometry=False)
-        result = self.driver.cycle(renderer, [v.target for v in views], self._masks(views), material, self.emit)
+        result = self.driver.cycle(renderer, [v.target for v in views], self._masks(views), material, self.emit,
+                                   lighting=self.lighting)
+        if self.lighting is not None:
+            self.lighting.normalise(material)  # the scale convention; the renders do not change
+            self.capture.environment = self.lighting.environment()
+            self._lighting_event("fitted", stage_before)
         if self.decision is not None and not self.decision.specular:
             material.disable("specular")  # the constant stage fits every channel: keep the diffuse-only model
         self.seconds += time.perf_counter() - start
@@ -139,15 +182,23 @@ class Appearance:
 
     def state(self) -> dict | None:
         """The material schedule's position (for --resume), or None without one."""
-        return None if self.driver is None else self.driver.state()
+        if self.driver is None:
+            return None
+        state = self.driver.state()
+        if self.lighting is not None:
+            state["lighting"] = self.lighting.state()
+        return state
 
     def restore(self, state: dict | None, views) -> None:
         """A resumed run: the material schedule continues where ``state`` left it."""
         if self.driver is not None:
             self.driver.restore(state, [v.target for v in views], self._masks(views))
+        if self.lighting is not None and state and state.get("lighting"):
+            self.lighting.level = int(state["lighting"].get("level", 0))
 
     def finish(self, folder, mesh, material) -> dict:
-        out = {"effects": self.history, "appearance_seconds": round(self.seconds, 3)}
+        out = {"effects": self.history, "appearance_seconds": round(self.seconds, 3),
+               "lighting": self.lighting_report()}
         if self.driver is not None:
             write_glb(folder / "result.glb", mesh, material)
             out["material_schedule"] = self.driver.report()

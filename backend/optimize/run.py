@@ -101,6 +101,7 @@ class Reconstruction:
         self.objective_factory = objective_factory
         self.viewset = ViewSet(capture, config.max_size)
         self.appearance = Appearance(capture, config, emit)
+        self.appearance.start_lighting(folder.path, resume)
         self.budget = Budget(config, self.appearance, self.state)
         self.truth = self._truth()
         self.last_snapshot = 0.0
@@ -274,6 +275,7 @@ class Reconstruction:
         start = time.perf_counter()
         info = {"iteration": s.iteration, "stage": s.phase, "level": s.level, "faces": s.mesh.n_faces, "loss": loss}
         state = s.to_json(self.budget.elapsed(), self.appearance.state())
+        self.appearance.write_lighting(self.folder.path)  # before the snapshot that announces it
         rel = self.folder.snapshot(self.material.display(s.mesh), info, state, self.material)
         self.emit("snapshot", path=rel, iteration=s.iteration, faces=s.mesh.n_faces, loss=loss)
         self.last_snapshot = time.perf_counter()

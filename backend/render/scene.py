@@ -89,7 +89,8 @@ def environment_to_world(rotation_z_deg: float) -> np.ndarray:
 
 
 def environment_dict(env: Environment, pixels: np.ndarray | None = None) -> dict:
-    pixels = read_rgba(env.path)[0][..., :3] if pixels is None else pixels
+    if pixels is None:
+        pixels = env.pixels if env.pixels is not None else read_rgba(env.path)[0][..., :3]
     return {"type": "envmap", "bitmap": mi.Bitmap(np.ascontiguousarray(pixels, dtype=np.float32)),
             "scale": float(env.strength),
             "to_world": mi.ScalarTransform4f(environment_to_world(env.rotation_z_deg))}

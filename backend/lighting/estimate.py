@@ -1,0 +1,292 @@
+"""``--lighting estimate``: the environment as one more parameter of the differentiable render.
+
+The map is a low-resolution equirectangular HDR image in Blender's World convention (the
+one ``capture.model.Environment`` documents, rotation 0), log-parameterised (texel =
+exp(latent), so it stays positive) with a smoothness prior (squared differences of
+neighbouring latents, longitude wrapping), coarse to fine (``RESOLUTIONS``: one step per
+material stage reached). It starts from what the frames show of the background outside the
+masks (the environment seen directly along the camera rays), else a uniform grey.
+
+The material stages fit it by Adam jointly with the material latents (``EnvironmentFit``,
+the ``lighting`` argument of ``material.stages.fit``); geometry steps render with the
+current map and leave it fixed. Albedo x light has one free scale: after each stage the map
+and the material are rescaled together so that the object's mean albedo is
+``ALBEDO_CONVENTION`` (the renders do not change)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+from PIL import Image
+
+from ..capture.images import read_linear_rgb, read_mask, write_image
+from ..capture.model import Capture, Environment
+
+RESOLUTIONS = ((16, 8), (32, 16), (64, 32))  # (width, height): constant, diffuse, specular stage
+STAGE_RESOLUTION = {"constant": 0, "diffuse": 1, "specular": 2, "done": 2}
+ALBEDO_CONVENTION = 0.5  # the object's mean albedo (over its surface and the three channels)
+CONVENTION = f"mean albedo of the object = {ALBEDO_CONVENTION} (map and albedo rescaled together after each stage)"
+INIT_SIZE = 64  # long side of the frames read for the initial map
+BACKGROUND_LEVEL = 1e-4  # a frame this dark outside its mask shows no background (premultiplied)
+FILENAME = "environment.exr"
+
+
+def directions(width: int, height: int) -> np.ndarray:
+    """World direction (Z up) of each texel centre, (height, width, 3) (Blender's lookup inverted:
+    u = 0.5 - atan2(y, x) / 2pi, v = acos(z) / pi, v = 0 the top row)."""
+    u = (np.arange(width) + 0.5) / width
+    v = (np.arange(height) + 0.5) / height
+    phi = 2 * np.pi * (0.5 - u)[None, :]
+    theta = np.pi * v[:, None]
+    return np.stack(np.broadcast_arrays(np.sin(theta) * np.cos(phi), np.sin(theta) * np.sin(phi),
+                                        np.cos(theta) + 0 * phi), -1)
+
+
+def texel_of(d: np.ndarray, width: int, height: int) -> tuple[np.ndarray, np.ndarray]:
+    """(row, column) of the texel a world direction (N, 3) looks up."""
+    d = d / np.linalg.norm(d, axis=-1, keepdims=True)
+    u = (0.5 - np.arctan2(d[:, 1], d[:, 0]) / (2 * np.pi)) % 1.0
+    v = np.arccos(np.clip(d[:, 2], -1, 1)) / np.pi
+    return np.minimum((v * height).astype(int), height - 1), np.minimum((u * width).astype(int), width - 1)
+
+
+def _small(a: np.ndarray, w: int, h: int) -> np.ndarray:
+    chans = a[..., None] if a.ndim == 2 else a
+    out = np.stack([np.asarray(Image.fromarray(np.ascontiguousarray(chans[..., c], np.float32), "F")
+                               .resize((w, h), Image.BOX)) for c in range(chans.shape[-1])], -1)
+    return out[..., 0] if a.ndim == 2 else out
+
+
+def background_samples(capture: Capture, size: int = INIT_SIZE):
+    """World directions and radiance of the background pixels (outside the masks) of frames that
+    show a background, and the mean radiance of the object pixels: (dirs (N, 3), rgb (N, 3), mean)."""
+    dirs, rgbs, inside = [], [], []
+    for frame in capture.frames:
+        cam = frame.camera
+        f = min(1.0, size / max(cam.width, cam.height))
+        w, h = max(1, round(cam.width * f)), max(1, round(cam.height * f))
+        image = _small(capture.camera_response.radiance(read_linear_rgb(frame.image)), w, h)
+        mask = _small(read_mask(frame.mask), w, h) if frame.mask else None
+        if mask is None:
+            continue
+        obj = mask > 0.5
+        if obj.any():
+            inside.append(image[obj].mean(0))
+        back = mask < 0.02
+        if not back.any() or float(image[back].max()) <= BACKGROUND_LEVEL:
+            continue  # black outside the mask: rendered without a background, or premultiplied
+        ys, xs = np.nonzero(back)
+        sx, sy = w / cam.width, h / cam.height
+        gl = np.stack([(xs + 0.5 - cam.cx * sx) / (cam.fx * sx), -(ys + 0.5 - cam.cy * sy) / (cam.fy * sy),
+                       -np.ones(len(xs))], -1)
+        dirs.append(gl @ cam.camera_to_world[:3, :3].T)
+        rgbs.append(image[back])
+    mean = np.mean(inside, 0) if inside else np.full(3, 0.25)
+    if not dirs:
+        return np.zeros((0, 3)), np.zeros((0, 3)), mean
+    return np.concatenate(dirs), np.concatenate(rgbs), mean
+
+
+def initial_map(capture: Capture, width: int, height: int) -> tuple[np.ndarray, str, float]:
+    """The starting map (height, width, 3), where it came from ("background" or "uniform") and
+    the share of texels the background showed. Uniform grey is the level at which an albedo of
+    ``ALBEDO_CONVENTION`` renders the object's mean brightness; unseen texels take the mean of
+    the seen ones."""
+    dirs, rgb, object_mean = background_samples(capture)
+    grey = np.full(3, max(float(np.mean(object_mean)), 1e-3) / ALBEDO_CONVENTION)
+    if len(dirs) == 0:
+        return np.tile(grey, (height, width, 1)).astype(np.float32), "uniform", 0.0
+    rows, cols = texel_of(dirs, width, height)
+    index = rows * width + cols
+    count = np.bincount(index, minlength=width * height).astype(np.float64)
+    sums = np.stack([np.bincount(index, rgb[:, c], minlength=width * height) for c in range(3)], -1)
+    seen = count > 0
+    pixels = np.empty((width * height, 3))
+    pixels[seen] = sums[seen] / count[seen, None]
+    pixels[~seen] = pixels[seen].mean(0)
+    floor = 1e-3 * max(float(pixels.mean()), 1e-6)
+    return np.maximum(pixels, floor).reshape(height, width, 3).astype(np.float32), "background", float(seen.mean())
+
+
+def upsample(latent: np.ndarray, width: int, height: int) -> np.ndarray:
+    """A latent map resampled (bilinear, longitude wrapping) to ``width`` x ``height``."""
+    h0, w0, _ = latent.shape
+    if (w0, h0) == (width, height):
+        return latent
+    x = (np.arange(width) + 0.5) * w0 / width - 0.5
+    y = np.clip((np.arange(height) + 0.5) * h0 / height - 0.5, 0, h0 - 1)
+    x0 = np.floor(x).astype(int)
+    fx = (x - x0)[None, :, None]
+    y0 = np.minimum(np.floor(y).astype(int), h0 - 1)
+    y1 = np.minimum(y0 + 1, h0 - 1)
+    fy = (y - y0)[:, None, None]
+    a, b = x0 % w0, (x0 + 1) % w0
+    top = latent[y0][:, a] * (1 - fx) + latent[y0][:, b] * fx
+    bottom = latent[y1][:, a] * (1 - fx) + latent[y1][:, b] * fx
+    return (top * (1 - fy) + bottom * fy).astype(np.float32)
+
+
+def mean_albedo(material) -> float:
+    """The object's mean albedo: over faces (per-face mean of mesh colors, or the face's
+    material constant) and the three channels."""
+    values = material.values("albedo")
+    if material.channels["albedo"].kind == "colors":
+        return float(values[material.layout.table].mean())
+    return float(values[material.labels].mean())
+
+
+class EstimatedEnvironment:
+    """The fitted map: its latent (height, width, 3) = log radiance, where it is written, and the
+    history of its fit (``report``)."""
+
+    smoothness: float = 0.02  # x mean squared difference of neighbouring latents
+    lr: float = 0.05  # Adam step on the latents
+
+    def __init__(self, latent: np.ndarray, path: Path, source: str = "uniform", seen: float = 0.0):
+        self.latent = np.asarray(latent, np.float32)
+        self.path = Path(path)
+        self.source, self.seen = source, seen
+        self.level = 0
+        self.scales: list[float] = []  # the convention's rescaling factors, one per stage
+
+    @classmethod
+    def initial(cls, capture: Capture, path: Path) -> "EstimatedEnvironment":
+        width, height = RESOLUTIONS[0]
+        pixels, source, seen = initial_map(capture, width, height)
+        return cls(np.log(pixels), path, source, seen)
+
+    @classmethod
+    def load(cls, path: Path, level: int = 0) -> "EstimatedEnvironment":
+        """The map a resumed run wrote (RUN/environment.exr)."""
+        pixels = read_linear_rgb(path)
+        out = cls(np.log(np.maximum(pixels, 1e-8)), path, "resumed")
+        out.level = level
+        return out
+
+    # -- the map ---------------------------------------------------------------------------------
+    @property
+    def resolution(self) -> tuple[int, int]:
+        return self.latent.shape[1], self.latent.shape[0]
+
+    @property
+    def pixels(self) -> np.ndarray:
+        return np.exp(self.latent).astype(np.float32)
+
+    def environment(self) -> Environment:
+        """The capture's lighting now: the current map (in memory), strength 1, rotation 0."""
+        return Environment(self.path, 1.0, 0.0, "estimated", pixels=self.pixels)
+
+    def mean_radiance(self) -> list[float]:
+        """Solid-angle weighted mean radiance per channel (the map's average over the sphere)."""
+        h = self.latent.shape[0]
+        weight = np.sin(np.pi * (np.arange(h) + 0.5) / h)[:, None, None]
+        return [float(x) for x in (self.pixels * weight).sum((0, 1)) / (weight.sum() * self.latent.shape[1])]
+
+    def at_stage(self, stage: str) -> bool:
+        """Coarse to fine: the resolution of the material stage about to run (never coarser);
+        True when it changed."""
+        level = max(self.level, STAGE_RESOLUTION.get(stage, 0))
+        if level == self.level and self.resolution == RESOLUTIONS[level]:
+            return False
+        self.level = level
+        self.latent = upsample(self.latent, *RESOLUTIONS[level])
+        return True
+
+    def rescale(self, factor: float) -> None:
+        self.latent = self.latent + np.float32(np.log(factor))
+
+    def normalise(self, material) -> float:
+        """The scale convention: map and material rescaled together so the mean albedo is
+        ``ALBEDO_CONVENTION`` (specular scaled with the albedo; renders unchanged while no
+        value clips at 1). A fitted light factor is folded into the map. Returns the factor the
+        albedo was multiplied by."""
+        light = float(getattr(material, "light_factor", 1.0) or 1.0)
+        if light != 1.0:
+            self.rescale(light)
+            material.light_factor = 1.0
+        mean = mean_albedo(material)
+        if not mean > 1e-6:
+            return 1.0
+        s = ALBEDO_CONVENTION / mean
+        for name in ("albedo", "specular"):
+            ch = material.channels[name]
+            material.set_values(name, np.clip(material.values(name) * s, 1e-4, 1 - 1e-4), ch.kind)
+        self.rescale(1.0 / s)
+        self.scales.append(round(s, 6))
+        return s
+
+    def write(self, path: Path | None = None) -> Path:
+        """The map as an EXR (equirectangular, Blender's World convention), atomically."""
+        path = Path(path or self.path)
+        write_image(path, self.pixels)
+        return path
+
+    def state(self) -> dict:
+        return {"level": self.level}
+
+    def report(self) -> dict:
+        width, height = self.resolution
+        return {"model": "environment map (estimated)", "file": FILENAME, "resolution": [width, height],
+                "parameterisation": "texel = exp(latent), smoothness prior on neighbouring latents",
+                "smoothness": self.smoothness, "initial": self.source, "background_coverage": round(self.seen, 4),
+                "scale_convention": CONVENTION, "albedo_scales": self.scales,
+                "mean_radiance": [round(x, 6) for x in self.mean_radiance()]}
+
+    def fit(self) -> "EnvironmentFit":
+        return EnvironmentFit(self)
+
+
+class EnvironmentFit:
+    """The map's share of a material stage's Adam (``material.stages.fit``): its latent as one
+    more optimised variable, written into the scene's ``environment.data`` before every render,
+    its smoothness penalty, and the result taken back."""
+
+    KEY = "environment.data"
+    NAME = "environment"
+
+    def __init__(self, estimate: EstimatedEnvironment):
+        import drjit as dr
+        import mitsuba as mi  # here: the rest of the module (the map's maths, its files) needs no Mitsuba
+
+        self.dr, self.mi = dr, mi
+        self.estimate = estimate
+        h, w, _ = estimate.latent.shape
+        # Mitsuba's envmap data carries one wrapped column on each side: (h, w + 2, 3)
+        cols = np.concatenate([[w - 1], np.arange(w), [0]])
+        index = (np.arange(h)[:, None, None] * w + cols[None, :, None]) * 3 + np.arange(3)[None, None, :]
+        self.index = mi.UInt32(index.astype(np.uint32).ravel())
+        self.shape = (h, w + 2, 3)
+        right = (np.arange(h)[:, None] * w + (np.arange(w)[None, :] + 1) % w)
+        down = np.minimum(np.arange(h)[:, None] + 1, h - 1) * w + np.arange(w)[None, :]
+        here = np.arange(h)[:, None] * w + np.arange(w)[None, :]
+        pairs = np.concatenate([np.stack([here, right], -1).reshape(-1, 2),
+                                np.stack([here[:-1], down[:-1]], -1).reshape(-1, 2)])
+        self.pairs = [mi.UInt32((pairs[:, k, None] * 3 + np.arange(3)).astype(np.uint32).ravel()) for k in (0, 1)]
+
+    def present(self, renderer) -> bool:
+        return self.KEY in renderer.params
+
+    def initial(self):
+        return self.mi.Float(self.estimate.latent.ravel())
+
+    def apply(self, renderer, latent) -> None:
+        """Write exp(latent) into the scene (per view: a backward pass uses up the graph)."""
+        dr, mi = self.dr, self.mi
+        data = dr.gather(mi.Float, dr.exp(latent), self.index)
+        renderer.params[self.KEY] = mi.TensorXf(data, self.shape)
+        renderer.params.update()
+
+    def penalty(self, latent):
+        dr, mi = self.dr, self.mi
+        a, b = (dr.gather(mi.Float, latent, p) for p in self.pairs)
+        return self.estimate.smoothness * dr.mean(dr.square(a - b))
+
+    def finish(self, renderer, latent) -> None:
+        self.estimate.latent = np.array(self.dr.detach(latent), np.float32).reshape(self.estimate.latent.shape)
+        self.reset(renderer)
+
+    def reset(self, renderer) -> None:
+        """The scene's map set to the estimate's current latent (no gradients)."""
+        with self.dr.suspend_grad():
+            self.apply(renderer, self.mi.Float(self.estimate.latent.ravel()))
