@@ -44,10 +44,11 @@ from ..geometry.simplify import FaceBudget
 from .schedule import level_size
 from .views import frame_size, validation_views
 
-FIXED_SECONDS = 8.0  # process start, capture loading, initial mesh, effects decision (measured: docs/results.md)
-FINAL_MATERIAL_CYCLES = 4  # diffuse and specular stages on the converged geometry, two cycles each
-POLISH_ROUNDS = 1
-POLISH_STEPS = 130  # (polish_patience + polish_window) x eval_every: the shortest round that can end
+FIXED_SECONDS = 15.0  # process start, loading, initial mesh, effects decision, snapshots, outputs
+# counted on a staged Draft run of a 6-view synthetic capture (docs/results.md, "Predicted time"):
+FINAL_MATERIAL_CYCLES = 3  # long cycles (x4 iterations) on the converged geometry before polishing
+POLISH_ROUNDS = 2  # each followed by one long refinement cycle
+POLISH_STEPS = 170  # steps per polish round (at most level_iterations x polish_length)
 MATERIAL_ITERATIONS = 40  # FitSettings.iterations
 MAX_PROBE_FACES = 20480  # larger face counts are extrapolated (a probe step there costs seconds)
 
@@ -229,10 +230,10 @@ def probe_points(configs, pixels_at) -> tuple[list[int], list[int]]:
 
 
 def measure(capture, viewset, settings, sizes: list[int], faces: list[int], tone: str = "log",
-            validation_spp: int = 16, repeats: int = 2, spec: str = "auto") -> StepCosts:
+            validation_spp: int = 16, repeats: int = 3) -> StepCosts:
     """Time one view's geometry step, validation render and material step at every (size,
     faces) of ``sizes`` x ``faces`` on this capture with ``settings`` (RenderSettings of the
-    geometry steps); ``spec``: the constant material timed (the --material of a constant run)."""
+    geometry steps), with the estimated constant material."""
     import drjit as dr
 
     from ..geometry.init.sphere import sphere_mesh
@@ -241,7 +242,7 @@ def measure(capture, viewset, settings, sizes: list[int], faces: list[int], tone
     from .objective import Objective
 
     start = time.perf_counter()
-    material = factory.create(spec if spec.startswith("known:") else "auto")
+    material = factory.create("auto")  # the estimated constant material: trainable, as the material steps need
     environment = lit_environment(capture, material)
     view = len(viewset) // 2
     points = []
@@ -324,8 +325,7 @@ def make_plan(capture, configs: dict, settings, staged: bool, calibration: dict 
     pixels_at = pixels_for(viewset)
     sizes, faces = probe_points(configs.values(), pixels_at)
     first = next(iter(configs.values()))
-    spec = first.material if isinstance(first.material, str) else "auto"
-    costs = measure(capture, viewset, settings, sizes, faces, first.tone, first.validation_spp, spec=spec)
+    costs = measure(capture, viewset, settings, sizes, faces, first.tone, first.validation_spp)
     presets = {name: predict(name, c, costs, pixels_at, len(viewset), staged, (calibration or {}).get(name))
                for name, c in configs.items()}
     return Plan(costs, presets, dataclasses.asdict(settings))

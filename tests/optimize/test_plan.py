@@ -1,0 +1,71 @@
+"""The plan (optimize/plan.py): the cost model's pieces, then ``reconstruct --plan`` and the
+``preset`` event on a tiny synthetic capture (6 views at 32 px, real step timings)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from backend.optimize import plan
+from backend.optimize.config import ReconstructConfig
+from backend.optimize.presets import PRESETS
+from tests.helpers import run_cli
+
+
+@pytest.fixture(scope="module")
+def capture(tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("plan") / "capture"
+    run_cli("synth", "--out", out, "--views", 6, "--resolution", 32, "--spp", 16, "--held-out", 0, check=True)
+    return out
+
+
+def test_fit_recovers_a_plane_and_drops_negative_terms():
+    samples = [(p, f, 0.01 + 2e-6 * p + 3e-7 * f) for p in (1000, 9000) for f in (1000, 20000)]
+    a, b, c = plan.fit(samples)
+    assert a == pytest.approx(0.01) and b == pytest.approx(2e-6) and c == pytest.approx(3e-7)
+    # a face count that makes steps cheaper is noise: dropped, never negative
+    a, b, c = plan.fit([(1000, 1000, 0.2), (1000, 20000, 0.1), (9000, 1000, 0.5)])
+    assert min(a, b, c) >= 0
+    assert plan.fit([(1000, 500, 0.3), (1000, 500, 0.5)]) == pytest.approx((0.4, 0.0, 0.0))
+
+
+def test_levels_follow_the_face_budget_and_the_calibration_steps():
+    draft = ReconstructConfig(**PRESETS["draft"])
+    levels, source = plan.levels(draft)
+    assert [lv.size for lv in levels] == [48, 96, 96]
+    assert [lv.faces for lv in levels] == [2000, 4000, 5000]  # x4 capped at D = 4000, then D + 1000
+    assert all(lv.steps == draft.level_iterations for lv in levels) and source.startswith("config")
+    balanced = ReconstructConfig(**PRESETS["balanced"])
+    levels, source = plan.levels(balanced, {"levels": 8, "iterations": 1370})
+    assert len(levels) == 8 and {lv.steps for lv in levels} == {171} and source.startswith("calibration")
+    capped = ReconstructConfig(**PRESETS["balanced"], iterations=500)
+    assert sum(lv.steps for lv in plan.levels(capped, {"levels": 8, "iterations": 1370})[0]) == 500
+
+
+def test_plan_prints_one_row_per_preset_and_runs_nothing(capture, tmp_path):
+    run = tmp_path / "run"
+    proc = run_cli("reconstruct", capture, "--out", run, "--plan", timeout=300)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    lines = proc.stdout.strip().splitlines()
+    rows = {line.split()[0]: line.split() for line in lines[1:] if line.split()[0] in PRESETS}
+    assert list(rows) == list(PRESETS)  # draft, balanced, final
+    minutes = [float(rows[name][5]) for name in PRESETS]
+    assert 0 < minutes[0] < minutes[1] < minutes[2], lines
+    assert "Draft \u2248" in lines[-1] and "on this capture" in lines[-1]
+    assert not run.exists()
+
+
+def test_the_preset_event_carries_the_captures_prediction(capture, tmp_path):
+    run = tmp_path / "run"
+    proc = run_cli("reconstruct", capture, "--out", run, "--preset", "draft", "--init", "sphere",
+                   "--iterations", 6, "--max-size", 16, "--coarse-size", 16, "--initial-faces", 320,
+                   "--material", "known:0.6,0.6,0.6:0.25:0.35", "--effects", "specular", timeout=300)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    events = [json.loads(line) for line in (run / "events.jsonl").read_text().splitlines()]
+    preset = next(e for e in events if e["event"] == "preset")
+    assert preset["preset"] == "draft" and preset["predicted_minutes"] > 0
+    assert preset["expected_minutes"] is not None  # the calibration's figure stays (point-lit capture)
+    assert sum(lv["steps"] for lv in preset["plan"]["levels"]) == 6  # the iteration cap
+    assert preset["plan"]["costs"]["seconds"] < 30 and preset["plan"]["costs"]["points"]
