@@ -278,7 +278,9 @@ def _print_plan(args, capture) -> int:
             "write the capture first (capture-from-video), then plan on it")
     plan = capture_plan(capture, _preset_configs(args, PRESETS), calibrated())
     print(plan.table())
-    print(f"{plan.line()} on this capture (step costs measured in {plan.costs.seconds:.1f} s)")
+    print(f"{plan.line()} on this capture (step costs measured in {plan.costs.seconds:.1f} s)", flush=True)
+    # the same as one event (docs/protocol.md) for the add-on's Plan button
+    Emitter()("plan", line=plan.line(), **plan.to_json())
     return 0
 
 

@@ -53,7 +53,11 @@ def test_plan_prints_one_row_per_preset_and_runs_nothing(capture, tmp_path):
     assert list(rows) == list(PRESETS)  # draft, balanced, final
     minutes = [float(rows[name][5]) for name in PRESETS]
     assert 0 < minutes[0] < minutes[1] < minutes[2], lines
-    assert "Draft \u2248" in lines[-1] and "on this capture" in lines[-1]
+    summary = next(line for line in lines if line.startswith("Draft \u2248"))
+    assert "Balanced \u2248" in summary and "on this capture" in summary
+    event = json.loads(lines[-1])  # the same as one event, for the add-on
+    assert event["event"] == "plan" and event["line"] in summary
+    assert [event["presets"][n]["predicted_minutes"] for n in PRESETS] == pytest.approx(minutes, abs=0.06)
     assert not run.exists()
 
 
