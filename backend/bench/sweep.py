@@ -16,7 +16,7 @@ The grid's settings change the knobs of the ``reconstruct`` command one at a tim
 Draft preset: image size (--max-size), samples per pixel (--spp), bounces (prb_projective
 with --max-depth; 1 bounce = direct_projective), views per step, the iteration cap and time
 budget, and the face budget (--initial-faces, --max-levels); the presets themselves are
-part of the grid."""
+part of the grid. ``--ray [ADDRESS]`` runs the same runs as Ray tasks (``bench/_ray.py``)."""
 
 from __future__ import annotations
 
@@ -268,6 +268,11 @@ def add_arguments(parser) -> None:
     parser.add_argument("--report-only", action="store_true", help="only rewrite the report from results.jsonl")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--variant", help="Mitsuba variant (default: automatic)")
+    parser.add_argument("--ray", nargs="?", const="local", metavar="ADDRESS",
+                        help="run the grid as Ray tasks, one run per task: on the cluster at ADDRESS, or on a local "
+                             "Ray instance when none is given (needs `pip install ray`; see bench/_ray.py)")
+    parser.add_argument("--cpus-per-run", type=float, default=2,
+                        help="with --ray: CPUs each run declares (Ray's num_cpus; default: %(default)s)")
 
 
 def run(args) -> int:
@@ -278,6 +283,11 @@ def run(args) -> int:
     from ._sweep_scenes import SCENES, ensure
 
     emit = Emitter()
+    ray = None
+    if getattr(args, "ray", None) is not None:
+        from ._ray import require_ray
+
+        ray = require_ray()
     scenes = [s.strip() for s in args.scenes.split(",") if s.strip()]
     unknown = [s for s in scenes if s not in SCENES]
     if unknown:
@@ -297,15 +307,25 @@ def run(args) -> int:
         code = code_version()
         done = {(r["scene"], r["name"]) for r in load_results(results) if r.get("rc") == 0}
         todo = [(scene, s) for scene in scenes for s in grid if args.rerun or (scene, s.name) not in done]
-        for i, (scene, setting) in enumerate(todo):
+
+        def record(i, scene, setting, row):
+            row["machine"], row["code"] = info, code
+            append_result(results, row)
+            emit("progress", stage="sweep", iteration=i, iterations=len(todo), fraction=i / len(todo),
+                 scene=scene, setting=setting.name, seconds=row["seconds"], f1=row.get("f1"), rc=row["rc"])
+
+        if ray is not None:
+            from ._ray import run_tasks
+
+            todo_ray = [(scene, ensure(scene, args.out / "scenes", emit), s) for scene, s in todo]
+            emit("stage", stage="sweep:ray", level=0, faces=0, runs=len(todo), cpus_per_run=args.cpus_per_run)
+            run_tasks(ray, todo_ray, args, record)
+        for i, (scene, setting) in enumerate(todo if ray is None else []):
             capture = ensure(scene, args.out / "scenes", emit)
             emit("stage", stage=f"sweep:{scene}:{setting.name}", level=i, faces=0)
             row = measure(scene, capture, setting, args.out, args.repeats, args.repeat_under, args.variant,
                           args.eval_spp, args.seed)
-            row["machine"], row["code"] = info, code
-            append_result(results, row)
-            emit("progress", stage="sweep", iteration=i + 1, iterations=len(todo), fraction=(i + 1) / len(todo),
-                 scene=scene, setting=setting.name, seconds=row["seconds"], f1=row.get("f1"), rc=row["rc"])
+            record(i + 1, scene, setting, row)
     rows = load_results(results)
     written = _report.write(rows, args.report, SCENES, history=load_history(results))
     emit("done", report=str(written), results=str(results), runs=len(rows))
