@@ -69,7 +69,8 @@ def test_reconstruct_video_needs_masks_and_a_light(tmp_path, env):
     proc = run_cli("reconstruct", video, "--env", env, "--out", tmp_path / "run")
     assert proc.returncode == 2 and "a video needs its object masks" in proc.stderr, proc.stderr
     masks = _disc_masks(tmp_path / "masks", 4, 96, 64)
-    proc = run_cli("reconstruct", video, "--masks", masks, "--out", tmp_path / "run")
+    # with no --env the lighting is estimated by default; --lighting none keeps the error
+    proc = run_cli("reconstruct", video, "--masks", masks, "--lighting", "none", "--out", tmp_path / "run")
     assert proc.returncode == 2 and "no light source" in proc.stderr and "--env HDR" in proc.stderr, proc.stderr
     assert proc.stderr.strip().count("\n") == 0 and "Traceback" not in proc.stderr
     assert not (tmp_path / "run").exists()
