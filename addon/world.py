@@ -54,3 +54,21 @@ def set_environment(world: bpy.types.World, image: bpy.types.Image, strength: fl
     links.new(background.outputs["Background"], output.inputs["Surface"])
     for i, node in enumerate((coords, mapping, env, background, output)):
         node.location = (i * 250 - 600, 0)
+
+
+ESTIMATED_MAP = "environment.exr"  # written by reconstruct --lighting estimate (docs/protocol.md)
+
+
+def load_estimated_environment(scene: bpy.types.Scene, run_dir: str | Path) -> bool:
+    """Light ``scene``'s World with the map a ``--lighting estimate`` run fitted
+    (RUN/environment.exr, Blender's convention, rotation 0, strength 1); False when the run has
+    none. The image is re-read, so a second run into the same folder shows its own map."""
+    path = Path(run_dir) / ESTIMATED_MAP
+    if not path.is_file():
+        return False
+    image = load_environment_image(path)
+    image.reload()
+    if scene.world is None:
+        scene.world = bpy.data.worlds.new("SfT World")
+    set_environment(scene.world, image, 1.0, 0.0)
+    return True

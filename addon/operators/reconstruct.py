@@ -10,7 +10,7 @@ from pathlib import Path
 import bpy
 from bpy.props import StringProperty
 
-from .. import interpreter, jobs, progress, scene_mesh
+from .. import interpreter, jobs, progress, scene_mesh, world
 from ..errors import AddonInputError, require
 from ..preferences import backend_python
 from .common import abspath, capture_dir, has_backend, idle
@@ -121,14 +121,24 @@ class _ReconstructModal(JobModal):
         if state.status == progress.DONE:
             metrics = state.done.get("metrics") or {}
             shown = ", ".join(f"{k} {v:.4g}" for k, v in metrics.items() if isinstance(v, (int, float)))
+            lit = _load_estimated_lighting(context, job.run_dir)
             self.report({"INFO"}, f"reconstruction done in {progress.format_duration(state.elapsed())}"
-                                  + (f": {shown}" if shown else ""))
+                                  + (f": {shown}" if shown else "") + lit)
         elif state.status == progress.CANCELLED:
             self.report({"WARNING"}, "reconstruction cancelled; the last snapshot is kept (Resume continues it)"
                         if changed else "reconstruction cancelled before its first snapshot")
         else:
             self.report({"ERROR"}, f"reconstruction failed: {state.message}")
         return {"FINISHED"} if changed else {"CANCELLED"}
+
+
+def _load_estimated_lighting(context, run_dir) -> str:
+    """The run's estimated environment (``--lighting estimate``) into the World; a note for the report."""
+    try:
+        return "; World lit by the estimated environment" if world.load_estimated_environment(context.scene,
+                                                                                             run_dir) else ""
+    except AddonInputError as err:
+        return f"; estimated environment not loaded ({err})"
 
 
 class SFT_OT_reconstruct(_ReconstructModal, bpy.types.Operator):
