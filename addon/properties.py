@@ -51,6 +51,8 @@ class SFT_SceneSettings(bpy.types.PropertyGroup):
                                 description="Environment rotation about Z, degrees")
     preset: EnumProperty(name="Quality", items=QUALITY, default="auto",
                          description="Reconstruction quality preset")
+    plan_text: StringProperty(name="Plan", default="",
+                              description="Each preset's predicted time on this capture (the Plan button)")
     time_budget: FloatProperty(name="Time Budget", default=30.0, min=0.0, soft_max=240.0, precision=0,
                                description="Minutes for the whole reconstruction: it stops then with the best "
                                            "mesh so far (0: until converged)")

@@ -95,6 +95,14 @@ class SFT_PT_reconstruct(_Panel, bpy.types.Panel):
             box.label(text=f"{label}: {presets.describe(key, calibration)}",
                       icon="RADIOBUT_ON" if key == sft.preset else "RADIOBUT_OFF")
         box.label(text="Times measured on a point-lit object; HDR-lit captures take longer", icon="INFO")
+        plan = jobs.ACTIVE.get("plan")
+        row = box.row(align=True)
+        if plan is not None and plan.running:
+            row.label(text="Measuring this capture's step costs...", icon="TIME")
+            row.operator("sft.plan_cancel", text="", icon="CANCEL")
+        else:
+            row.label(text=sft.plan_text or "This capture: press Plan", icon="TIME")
+            row.operator("sft.plan", text="Plan", icon="PREVIEW_RANGE")
         col.prop(sft, "time_budget", text="Time Budget (min, 0 = until converged)")
         col.prop(sft, "material")
         col.prop(sft, "init")

@@ -163,16 +163,25 @@ class PresetPlan:
     expected_f1: float | None = None  # on the calibration scene
 
     @property
+    def unbounded_seconds(self) -> float:
+        return self.geometry_s + self.material_s + self.polish_s + self.fixed_s
+
+    @property
+    def capped(self) -> bool:
+        """Whether the time budget ends the run before its levels do."""
+        return bool(self.budget_s and self.unbounded_seconds > self.budget_s)
+
+    @property
     def seconds(self) -> float:
-        total = self.geometry_s + self.material_s + self.polish_s + self.fixed_s
-        return min(total, self.budget_s) if self.budget_s else total
+        return min(self.unbounded_seconds, self.budget_s) if self.capped else self.unbounded_seconds
 
     @property
     def minutes(self) -> float:
         return self.seconds / 60.0
 
     def to_json(self) -> dict:
-        return {"preset": self.preset, "predicted_minutes": round(self.minutes, 2),
+        return {"preset": self.preset, "predicted_minutes": round(self.minutes, 2), "capped_by_budget": self.capped,
+                "unbounded_minutes": round(self.unbounded_seconds / 60, 2),
                 "geometry_s": round(self.geometry_s, 1), "material_s": round(self.material_s, 1),
                 "polish_s": round(self.polish_s, 1), "fixed_s": round(self.fixed_s, 1),
                 "levels": [lv.to_json() for lv in self.levels], "steps_from": self.steps_from,
@@ -295,7 +304,8 @@ class Plan:
 
     def line(self) -> str:
         """'Draft ≈ 3 min, Balanced ≈ 14 min, Final ≈ 40 min'"""
-        return ", ".join(f"{n.capitalize()} \u2248 {minutes_text(p.minutes)}" for n, p in self.presets.items())
+        return ", ".join(f"{n.capitalize()} \u2248 {minutes_text(p.minutes)}{' (budget)' if p.capped else ''}"
+                         for n, p in self.presets.items())
 
     def table(self) -> str:
         rows = [("preset", "levels", "sizes px", "faces", "steps", "predicted min", "F1 (calibration)")]
@@ -303,7 +313,7 @@ class Plan:
             sizes = sorted({lv.size for lv in p.levels})
             rows.append((name, str(len(p.levels)), f"{sizes[0]}-{sizes[-1]}" if sizes else "-",
                          f"{p.levels[0].faces}-{p.levels[-1].faces}" if p.levels else "-",
-                         str(sum(lv.steps for lv in p.levels)), f"{p.minutes:.1f}",
+                         str(sum(lv.steps for lv in p.levels)), f"{p.minutes:.1f}" + (" (budget)" if p.capped else ""),
                          "-" if p.expected_f1 is None else f"{p.expected_f1:.3f}"))
         widths = [max(len(r[i]) for r in rows) for i in range(len(rows[0]))]
         return "\n".join("  ".join(x.ljust(w) for x, w in zip(r, widths)).rstrip() for r in rows)
