@@ -24,6 +24,11 @@ EFFECTS = (
      "specular) and simulate only those"),
     ("ALL", "All", "Simulate every effect: slower, for scenes where the measurement may miss one"),
 )
+LIGHTING = (
+    ("ESTIMATE", "Estimate", "Fit an environment map with the material (no HDR capture needed); the World shows "
+     "it after the run. Albedo and light share one scale: the object's mean albedo is set to 0.5"),
+    ("CAPTURED", "Captured HDR", "The imported environment map (Import Environment Map) or the capture's own lights"),
+)
 
 
 def _is_mesh(_self, obj) -> bool:
@@ -63,6 +68,8 @@ class SFT_SceneSettings(bpy.types.PropertyGroup):
                                  description="Mesh object to start from (empty: the active object)")
     effects: EnumProperty(name="Effects", items=EFFECTS, default="AUTO",
                           description="Light-transport effects simulated while optimising")
+    lighting: EnumProperty(name="Lighting", items=LIGHTING, default="ESTIMATE",
+                           description="Where the light comes from (Import Environment Map switches to Captured HDR)")
     extra_args: StringProperty(
         name="Extra Arguments", default="",
         description="Further command-line options for 'python -m backend reconstruct' (they win over the "

@@ -29,6 +29,7 @@ def load_cameras(context, info: capture_file.CaptureInfo, show_frames: bool, wit
         env = info.environment
         world.set_environment(scene.world, env_image, env["strength"], env["rotation_z_deg"])
         scene.sft.env_path = str(env["path"])
+        scene.sft.lighting = "CAPTURED"
         scene.sft.env_strength, scene.sft.env_rotation = env["strength"], env["rotation_z_deg"]
     return f"{len(info.frames)} cameras from {info.root}" + (", environment lit" if env_image else "")
 

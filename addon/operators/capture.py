@@ -253,6 +253,7 @@ class SFT_OT_import_environment(bpy.types.Operator, ImportHelper):
             scene.world = bpy.data.worlds.new("SfT World")
         world.set_environment(scene.world, image, self.strength, self.rotation_z)
         scene.sft.env_path = image.filepath
+        scene.sft.lighting = "CAPTURED"
         scene.sft.env_strength = self.strength
         scene.sft.env_rotation = self.rotation_z
         self.report({"INFO"}, f"World lit by {Path(image.filepath).name}")

@@ -43,7 +43,9 @@ def method_args(sft, init_mesh: Path | None = None) -> list[str]:
     elif sft.init in INIT_OPTIONS:
         args += ["--init", INIT_OPTIONS[sft.init]]
     args += ["--effects", sft.effects.lower()]
-    if sft.env_path:
+    if sft.lighting == "ESTIMATE":
+        args += ["--lighting", "estimate"]
+    elif sft.env_path:
         args += ["--env", str(abspath(sft.env_path)), "--env-strength", f"{sft.env_strength:g}",
                  "--env-rotation", f"{sft.env_rotation:g}"]
     return args

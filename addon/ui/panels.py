@@ -109,7 +109,10 @@ class SFT_PT_reconstruct(_Panel, bpy.types.Panel):
         if sft.init == "OBJECT":
             col.prop(sft, "init_object")
         col.prop(sft, "effects")
-        if sft.env_path:
+        col.prop(sft, "lighting")
+        if sft.lighting == "ESTIMATE":
+            col.label(text="Lighting estimated with the material (mean albedo 0.5 sets the scale)", icon="WORLD_DATA")
+        elif sft.env_path:
             col.label(text=f"Lighting: {Path(sft.env_path).name} x{sft.env_strength:g} {sft.env_rotation:g}°",
                       icon="WORLD_DATA")
         else:

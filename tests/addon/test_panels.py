@@ -73,9 +73,14 @@ def test_panels_draw_in_an_empty_scene(context):
     assert labels[:3] == [f"{title}: {expected_cost(key)}" for key, title in
                           (("draft", "Draft"), ("balanced", "Balanced"), ("final", "Final"))]
     assert "Times measured on a point-lit object; HDR-lit captures take longer" in labels
-    assert "No lighting: Import Environment Map" in labels
+    assert any(label.startswith("Lighting estimated with the material") for label in labels)  # the default
     props = [entry[1] for entry in log["SFT_PT_reconstruct"] if entry[0] == "prop"]
-    assert props == ["preset", "time_budget", "material", "init", "effects"], "the method's settings, no free text"
+    assert props == ["preset", "time_budget", "material", "init", "effects", "lighting"], \
+        "the method's settings, no free text"
+    context.scene.sft.lighting = "CAPTURED"
+    labels = [e[1] for e in draw("SFT_PT_reconstruct", context) if e[0] == "label"]
+    assert "No lighting: Import Environment Map" in labels
+    context.scene.sft.lighting = "ESTIMATE"
     assert [e[1] for e in draw("SFT_PT_reconstruct_advanced", context) if e[0] == "prop"] == ["extra_args"]
     context.scene.sft.init = "OBJECT"
     assert ("prop", "init_object") in draw("SFT_PT_reconstruct", context)
