@@ -5,7 +5,8 @@ Model. A run's time is its steps times what a step costs on this capture, plus a
     step(size, faces) = k * g(p, f) + (2 V / eval_every) * r(p, f)
     g, r, m(p, f)     = a + b * p + c * f      (least squares over the measured points, each >= 0)
 
-``g`` is one view's forward+backward geometry step (``Objective.loss_and_grad``), ``r`` one
+``g`` is one view's share of a two-view forward+backward geometry step
+(``Objective.loss_and_grad``; the per-call overhead is shared as in a run's step), ``r`` one
 view's forward render at half the validation samples (a validation loss renders each of its
 V views twice every ``eval_every`` steps), ``m`` one view's material-only gradient step;
 ``p`` is the pixels of one view at the level's size (the capture's aspect, capped at its
@@ -28,9 +29,15 @@ convergence by ``FINAL_MATERIAL_CYCLES`` cycles four times as long at the finest
 refinement cycle. ``FIXED_SECONDS`` covers the process start, loading, initialisation and the
 effects decision. A time budget or an iteration cap cuts the prediction where the run would stop.
 
-What it leaves out: a re-mesh (Poisson rebuild) between levels, and the effects decision
-changing its mind mid-run (the settings timed are those it chose at the start, or the base
-settings when it has not run yet). docs/results.md compares predicted and measured times."""
+The plan runs before the effects decision, so the render settings timed are those it most
+likely picks (``geometry_settings``: the base, direct light without shadow gradients, for
+point lights; shadow gradients and one bounce under an environment map), with the effects
+``--effects`` forces: a decision that differs makes the run shorter or longer than planned. The calibration run's step counts come from the sweep's constant-material runs of the
+dragon; what the levels of another object take is not known before it runs. Also left out: a
+re-mesh (Poisson rebuild) between levels. Measuring costs a few seconds (``StepCosts.seconds``:
+2-7 s on the 32-64 px test captures, against a Draft run of 3-5 minutes: about 2 %); the
+preset event measures only the chosen preset's points. docs/results.md ("Predicted time")
+compares predicted and measured times."""
 
 from __future__ import annotations
 
@@ -50,6 +57,10 @@ FINAL_MATERIAL_CYCLES = 3  # long cycles (x4 iterations) on the converged geomet
 POLISH_ROUNDS = 2  # each followed by one long refinement cycle
 POLISH_STEPS = 170  # steps per polish round (at most level_iterations x polish_length)
 MATERIAL_ITERATIONS = 40  # FitSettings.iterations
+# a material stage's iteration beyond its render and gradient (mesh-color Adam, smoothness term,
+# highlight weights): 0.097 s per specular iteration on the Draft run at 6000 faces and 32 px,
+# against 0.064 s of the probe's material step there
+MATERIAL_OVERHEAD_S = 0.03
 MAX_PROBE_FACES = 20480  # larger face counts are extrapolated (a probe step there costs seconds)
 
 
@@ -216,8 +227,10 @@ def predict(name: str, config, costs: StepCosts, pixels_at, n_views: int, staged
 
 
 def cycle_seconds(costs: StepCosts, pixels: float, faces: int, n_views: int, scale: int = 1) -> float:
-    """One material cycle: its one-view material steps and a full-view evaluation."""
-    return scale * MATERIAL_ITERATIONS * costs("material", pixels, faces) + n_views * costs("forward", pixels, faces)
+    """One material cycle: its one-view material steps (each with the fit's own work on the
+    mesh colors, MATERIAL_OVERHEAD_S) and a full-view evaluation."""
+    step = costs("material", pixels, faces) + MATERIAL_OVERHEAD_S
+    return scale * MATERIAL_ITERATIONS * step + n_views * costs("forward", pixels, faces)
 
 
 # -- measuring ------------------------------------------------------------------------------------------
@@ -239,10 +252,11 @@ def probe_points(configs, pixels_at) -> tuple[list[int], list[int]]:
 
 
 def measure(capture, viewset, settings, sizes: list[int], faces: list[int], tone: str = "log",
-            validation_spp: int = 16, repeats: int = 3) -> StepCosts:
+            validation_spp: int = 16, repeats: int = 3, material_settings=None) -> StepCosts:
     """Time one view's geometry step, validation render and material step at every (size,
     faces) of ``sizes`` x ``faces`` on this capture with ``settings`` (RenderSettings of the
-    geometry steps), with the estimated constant material."""
+    geometry steps; the material step with ``material_settings``, default the same), with the
+    estimated constant material."""
     import drjit as dr
 
     from ..geometry.init.sphere import sphere_mesh
@@ -253,12 +267,13 @@ def measure(capture, viewset, settings, sizes: list[int], faces: list[int], tone
     start = time.perf_counter()
     material = factory.create("auto")  # the estimated constant material: trainable, as the material steps need
     environment = lit_environment(capture, material)
-    view = len(viewset) // 2
+    first = len(viewset) // 2
+    pair = [0, 1] if len(viewset) > 1 else [0]  # a step renders views_per_step views: time two, per view
     points = []
     for n_faces in faces:
         mesh = sphere_mesh(capture, n_faces)
         for size in sizes:
-            views = viewset.at(size)[view:view + 1]
+            views = (viewset.at(size)[first:] + viewset.at(size))[:len(pair)]
             objective = Objective(mesh, material, views, settings, environment, tone=tone)
 
             def timed(call) -> float:
@@ -269,9 +284,13 @@ def measure(capture, viewset, settings, sizes: list[int], faces: list[int], tone
                     times.append(time.perf_counter() - t0)
                 return float(np.median(times))
 
-            objective.loss_and_grad(mesh.vertices, [0], 7, geometry=True, material=True)  # compiles
-            gradient = timed(lambda s: objective.loss_and_grad(mesh.vertices, [0], s, geometry=True, material=True))
-            forward = timed(lambda s: objective.loss(mesh.vertices, [0], s, max(1, validation_spp // 2)))
+            objective.loss_and_grad(mesh.vertices, pair, 7, geometry=True, material=True)  # compiles
+            gradient = timed(lambda s: objective.loss_and_grad(mesh.vertices, pair, s, geometry=True,
+                                                               material=True)) / len(pair)
+            forward = timed(lambda s: objective.loss(mesh.vertices, pair, s, max(1, validation_spp // 2))) / len(pair)
+            if material_settings is not None and material_settings != settings:
+                del objective
+                objective = Objective(mesh, material, views, material_settings, environment, tone=tone)
             objective.loss_and_grad(mesh.vertices, [0], 7, geometry=False, material=True)
             mat = timed(lambda s: objective.loss_and_grad(mesh.vertices, [0], s, geometry=False, material=True))
             w, h = views[0].camera.width, views[0].camera.height
@@ -324,7 +343,7 @@ def minutes_text(minutes: float) -> str:
 
 
 def make_plan(capture, configs: dict, settings, staged: bool, calibration: dict | None = None,
-              viewset=None) -> Plan:
+              viewset=None, material_settings=None) -> Plan:
     """Measure this capture's step costs and predict every preset of ``configs`` ({name:
     ReconstructConfig}); ``settings``: the geometry steps' RenderSettings; ``calibration``:
     {preset: calibration entry}."""
@@ -335,17 +354,20 @@ def make_plan(capture, configs: dict, settings, staged: bool, calibration: dict 
     pixels_at = pixels_for(viewset)
     sizes, faces = probe_points(configs.values(), pixels_at)
     first = next(iter(configs.values()))
-    costs = measure(capture, viewset, settings, sizes, faces, first.tone, first.validation_spp)
+    costs = measure(capture, viewset, settings, sizes, faces, first.tone, first.validation_spp,
+                    material_settings=material_settings if staged else None)
     presets = {name: predict(name, c, costs, pixels_at, len(viewset), staged, (calibration or {}).get(name))
                for name, c in configs.items()}
     return Plan(costs, presets, dataclasses.asdict(settings))
 
 
 # -- for the reconstruct command -----------------------------------------------------------------------
-def geometry_settings(config) -> "RenderSettings":
-    """The geometry steps' render settings before the effects decision has run: the config's
-    base settings with the effects that ``--effects`` forces (measured ones stay at the base:
-    direct light, no shadow gradients)."""
+def geometry_settings(config, capture=None, geometry: bool = True) -> "RenderSettings":
+    """The geometry steps' render settings the run will most likely use, before its effects
+    decision has run: the config's base (direct light, no shadow gradients) for point-lit
+    captures; for an environment-lit one with measured effects, shadow gradients and one
+    bounce, which the decision turns on for objects that shadow themselves (each then pays
+    for itself: backend/optimize/effect_costs.py); the effects ``--effects`` forces win."""
     from ..render import effects
     from ..render.scene import RenderSettings
 
@@ -353,20 +375,22 @@ def geometry_settings(config) -> "RenderSettings":
     base = RenderSettings(spp=c.spp, max_depth=c.max_depth, integrator=c.integrator, hide_emitters=True,
                           sppc=c.spp, sppp=c.sppp, sppi=0)
     try:
-        _, forced = effects.parse_effects(c.effects)
+        measured, forced = effects.parse_effects(c.effects)
     except ValueError:
         return base
-    if not forced:
-        return base
-    decision = effects.EffectsDecision(max_depth=max(c.max_depth, 3) if forced.get("indirect") else 2,
-                                       shadows=bool(forced.get("shadows")),
+    likely = measured and capture is not None and capture.environment is not None
+    if not forced and not likely:
+        return base if geometry else effects.EffectsDecision().settings(base, geometry=False)
+    indirect = forced.get("indirect", likely)
+    decision = effects.EffectsDecision(max_depth=max(c.max_depth, 3) if indirect else 2,
+                                       shadows=bool(forced.get("shadows", likely)),
                                        silhouettes=forced.get("silhouettes", True))
-    return decision.settings(base, geometry=True)
+    return decision.settings(base, geometry=geometry)
 
 
 def capture_plan(capture, configs: dict, calibration: dict | None = None) -> Plan:
     """``make_plan`` for the reconstruct command: ``configs`` {preset: ReconstructConfig}, the
     staged material when the first config asks for it."""
     first = next(iter(configs.values()))
-    return make_plan(capture, configs, geometry_settings(first), staged=first.material == "staged",
-                     calibration=calibration)
+    return make_plan(capture, configs, geometry_settings(first, capture), staged=first.material == "staged",
+                     calibration=calibration, material_settings=geometry_settings(first, capture, geometry=False))
