@@ -52,9 +52,11 @@ from .schedule import level_size
 from .views import frame_size, validation_views
 
 FIXED_SECONDS = 15.0  # process start, loading, initial mesh, effects decision, snapshots, outputs
-# counted on a staged Draft run of a 6-view synthetic capture (docs/results.md, "Predicted time"):
-FINAL_MATERIAL_CYCLES = 3  # long cycles (x4 iterations) on the converged geometry before polishing
-POLISH_ROUNDS = 2  # each followed by one long refinement cycle
+# means over four staged Draft runs of three small synthetic captures (docs/results.md,
+# "Predicted time"): they end on their own convergence, so each run differs (3 to 8 long
+# cycles, 1 to 4 polish rounds of 100 to 240 steps); the main source of the plan's error
+FINAL_MATERIAL_CYCLES = 4.5  # long cycles (x4 iterations) on the converged geometry before polishing
+POLISH_ROUNDS = 2.5  # each followed by one long refinement cycle
 POLISH_STEPS = 170  # steps per polish round (at most level_iterations x polish_length)
 MATERIAL_ITERATIONS = 40  # FitSettings.iterations
 # a material stage's iteration beyond its render and gradient (mesh-color Adam, smoothness term,
