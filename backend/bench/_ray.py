@@ -29,19 +29,19 @@ def require_ray():
     return ray
 
 
-def _measure(scene: str, capture: str, setting, out: str, repeats: int, repeat_under: float, variant, eval_spp: int,
-             seed: int) -> dict:
-    """One sweep run inside a Ray worker (module level: workers import it by name)."""
+def _measure(measure, scene: str, capture: str, setting, out: str, repeats: int, repeat_under: float, variant,
+             eval_spp: int, seed: int) -> dict:
+    """One sweep run inside a Ray worker (module level: workers import it by name):
+    ``measure`` is sweep.measure (passed by reference, so this module does not import sweep)."""
     from .. import variant as variants
-    from .sweep import measure
 
     variants.choose(variant)  # the worker scores the result with Mitsuba, as the driver would
     return measure(scene, Path(capture), setting, Path(out), repeats, repeat_under, variant, eval_spp, seed)
 
 
-def run_tasks(ray, todo: list[tuple[str, Path, object]], args, on_row) -> None:
-    """Run every (scene, capture folder, Setting) of ``todo`` as a task; ``on_row(i, scene,
-    setting, row)`` as each finishes (in the order they finish)."""
+def run_tasks(ray, measure, todo: list[tuple[str, Path, object]], args, on_row) -> None:
+    """Run ``measure`` (sweep.measure) for every (scene, capture folder, Setting) of ``todo`` as
+    a task; ``on_row(i, scene, setting, row)`` as each finishes (in the order they finish)."""
     from ._machine import REPO
 
     if not ray.is_initialized():
@@ -49,7 +49,7 @@ def run_tasks(ray, todo: list[tuple[str, Path, object]], args, on_row) -> None:
         ray.init(address=address, include_dashboard=False, log_to_driver=False,
                  runtime_env={"env_vars": {"PYTHONPATH": str(REPO)}})
     task = ray.remote(num_cpus=args.cpus_per_run)(_measure)
-    pending = {task.remote(scene, str(capture), setting, str(Path(args.out).resolve()), args.repeats,
+    pending = {task.remote(measure, scene, str(capture), setting, str(Path(args.out).resolve()), args.repeats,
                            args.repeat_under, args.variant, args.eval_spp, args.seed): (scene, setting)
                for scene, capture, setting in todo}
     done = 0

@@ -319,7 +319,7 @@ def run(args) -> int:
 
             todo_ray = [(scene, ensure(scene, args.out / "scenes", emit), s) for scene, s in todo]
             emit("stage", stage="sweep:ray", level=0, faces=0, runs=len(todo), cpus_per_run=args.cpus_per_run)
-            run_tasks(ray, todo_ray, args, record)
+            run_tasks(ray, measure, todo_ray, args, record)
         for i, (scene, setting) in enumerate(todo if ray is None else []):
             capture = ensure(scene, args.out / "scenes", emit)
             emit("stage", stage=f"sweep:{scene}:{setting.name}", level=i, faces=0)
