@@ -44,6 +44,10 @@ class Appearance:
         self.specular_off = False  # the diffuse-only decision took the specular lobe out of training
         self.history: list[dict] = []
         self.seconds = 0.0
+        # the cost probe's verdicts: measured once per run (it costs several steps at the finer
+        # levels' sizes), then applied again at every later decision
+        self.costs: dict | None = None
+        self.costs_from: str | None = None  # the decision that measured them
         self.lighting: EstimatedEnvironment | None = None  # --lighting estimate: the fitted map
 
     # -- lighting ----------------------------------------------------------------------------------
@@ -215,6 +219,9 @@ class Appearance:
                                        [v.mask if v.mask is not None else np.ones(v.target.shape[:2]) for v in probe],
                                        _emitters(self.capture), cfg, self.overrides, self.measure,
                                        probe=self._cost_probe(mesh, material, views))
+        if "costs" in self.decision.measured:
+            self.costs_from = self.costs_from or reason
+            self.decision.measured["costs_measured_at"] = self.costs_from
         lobe_on = self.decision.specular and self.specular_off
         if not self.decision.specular:
             self.specular_off = self.specular_off or "specular" in material.trainable
@@ -240,9 +247,12 @@ class Appearance:
     def _cost_probe(self, mesh, material, views, n_views: int = 4):
         """The effects decision's cost probe (effects.weigh_costs): geometry steps on
         ``n_views`` spread views of ``mesh`` under each configuration, with the run's own
-        sample counts; None when effects are not measured."""
+        sample counts, the first time; the same verdicts at later decisions. None when effects
+        are not measured."""
         if not self.measure:
             return None
+        if self.costs is not None:
+            return lambda decision, candidates: {n: self.costs[n] for n in candidates if n in self.costs}
         c = self.config
         ids = sorted(set(np.linspace(0, len(views) - 1, min(n_views, len(views))).round().astype(int).tolist()))
         base = RenderSettings(spp=c.spp, max_depth=c.max_depth, integrator=c.integrator, hide_emitters=True,
@@ -258,9 +268,11 @@ class Appearance:
 
         def probe(decision, candidates):
             # the stiff system's smoothing as the norm: the share is that of a Large Steps direction
-            return effect_costs.measure(gradient, {n: d.settings(base, geometry=True) for n, d in candidates.items()},
-                                        decision.settings(base, geometry=True), mesh.faces, mesh.n_vertices,
-                                        c.lambda_ or STIFF[0])
+            self.costs = effect_costs.measure(gradient, {n: d.settings(base, geometry=True)
+                                                         for n, d in candidates.items()},
+                                              decision.settings(base, geometry=True), mesh.faces, mesh.n_vertices,
+                                              c.lambda_ or STIFF[0])
+            return self.costs
 
         return probe
 

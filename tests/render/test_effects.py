@@ -296,3 +296,18 @@ def test_effects_weigh_cost_and_need_under_environment_light(tmp_path, lighting)
     assert app.decision.shadows == costs["shadows"]["pays"]
     assert "x the step time" in app.decision.reasons["shadows"] and "bounce" in app.decision.reasons["indirect"]
     assert app.history[-1]["measured"]["costs"] == costs  # the effects event carries both
+
+
+def test_the_cost_probe_runs_once_and_its_verdicts_hold_at_later_decisions(tmp_path):
+    from backend.geometry.mesh import Mesh
+
+    app, mesh, material, views = _staged_appearance(tmp_path, "--lighting", "env", "--env", "sky")
+    estimate = Mesh(mesh.vertices * 1.06, mesh.faces)
+    app.decide(estimate, material, views, reason="initial mesh")
+    first = app.history[-1]
+    app.decide(mesh, material, views, reason="re-meshed")
+    later = app.history[-1]
+    assert later["measured"]["costs"] == first["measured"]["costs"]
+    assert later["measured"]["costs_measured_at"] == "initial mesh"
+    assert later["enabled"]["shadows"] == first["measured"]["costs"]["shadows"]["pays"]
+    assert later["seconds"] < first["seconds"]  # no steps timed the second time
