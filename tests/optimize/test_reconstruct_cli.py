@@ -372,6 +372,8 @@ def test_settings_variable_is_checked(capture, tmp_path):
 
 
 def test_a_capture_with_no_light_is_refused_and_env_lights_it(capture, tmp_path):
+    # with --lighting none: by default such a capture's lighting is estimated
+    # (tests/lighting/test_estimate.py)
     dark = tmp_path / "dark"
     import shutil
 
@@ -382,7 +384,7 @@ def test_a_capture_with_no_light_is_refused_and_env_lights_it(capture, tmp_path)
     doc.pop("environment", None)
     (dark / "capture.json").write_text(json.dumps(doc))
     run = tmp_path / "run"
-    proc = run_cli("reconstruct", dark, "--out", run, *FAST)
+    proc = run_cli("reconstruct", dark, "--out", run, *FAST, "--lighting", "none")
     assert proc.returncode == 2, proc.stderr[-2000:]
     line = proc.stderr.strip()
     assert "\n" not in line and "no light source" in line and "--env HDR" in line and str(dark) in line
