@@ -180,7 +180,7 @@ def test_synthetic_capture_truth_scores_itself_perfectly(tiny_capture, tmp_path,
 
 
 def test_run_with_specular_lobe_scores_diffuse_and_specular_passes(tiny_capture, tmp_path, capsys):
-    # a run whose display mesh is the truth with 0.8x the albedo: its specular-only pass equals
+    # a run whose display mesh is the truth with 0.8x the albedo: its specular-only pass matches
     # the truth's (same seeds), its diffuse-only pass does not
     from backend.capture import load_capture
     from backend.geometry.mesh import load_mesh
@@ -202,7 +202,8 @@ def test_run_with_specular_lobe_scores_diffuse_and_specular_passes(tiny_capture,
         runs[name] = (json.loads(out.read_text()), capsys.readouterr().out)
     report, table = runs["glossy"]
     parts = report["views"]["held_out"]["components"]
-    assert parts["specular"]["psnr"] == "inf"
+    # the same field, seeds and scene: equal up to the renderer's float summation order
+    assert parts["specular"]["psnr"] == "inf" or parts["specular"]["psnr"] > 80
     assert 10 < parts["diffuse"]["psnr"] < 60 and parts["diffuse"]["ssim"] < 1
     assert "psnr diffuse" in table and "psnr specular" in table
     report, table = runs["matte"]
