@@ -4,8 +4,8 @@ the step: a paired probe that the effects decision weighs (accuracy per second).
 Candidates are the effects whose cost grows the geometry step: shadow (indirect-silhouette)
 gradients, and one more bounce than the decision keeps. For each, on a few probe views, the
 probe takes geometry gradients with the current decision (``base``) and with the effect
-added, at two seeds each, in the optimiser's smoothed space g~ = (I + lambda L)^-1 dL/dv
-(the direction a Large Steps update follows), at K seeds:
+added, in the optimiser's smoothed space g~ = (I + lambda L)^-1 dL/dv (the direction a
+Large Steps update follows), at K seeds (``CostRule.seeds``, 3):
 
     d_k     = g~_e(s_k) - g~_base(s_k)              the effect's term, seeds paired
     |E d|^2 ~ mean over k < l of d_k . d_l           unbiased: different seeds' noise is independent
@@ -19,7 +19,7 @@ optimiser settles where its biased gradient vanishes, so the shape stays off by 
 share of what is left to fit. The cost is the median time of a step with and without the
 effect (kernels compiled by an untimed step first); ``ratio_e = seconds_e / seconds_base``.
 
-Selection: the effect is on when ``share_e >= value * (ratio_e - 1)``: the bias it removes
+Selection: the effect is on when z >= ``z_score`` and ``share_e >= value * (ratio_e - 1)``: the bias it removes
 must be worth the share of steps it costs (``value`` = 0.1: a step 1.3x as long must remove 3 %
 of the gradient; a free effect is on as soon as its term stands out of the noise,
 ``share_e >= min_share``)."""
