@@ -6,7 +6,7 @@
     driver.cycle(renderer, images, masks, material, emit)    # one stage of the schedule
     driver.on_remesh(mesh, material, cameras)                # after a re-mesh (labels re-voted)
     driver.finalise()                                        # geometry converged: last, longer stages
-    driver.refine() / driver.skip_rest()                     # the schedule's other moves
+    driver.refine() / driver.skip_to() / driver.skip_rest()  # the schedule's other moves
     driver.settle(renderer, images, masks, material)         # the end: keep the specular texture?
     driver.state() / driver.restore(state, images, masks)   # the schedule's position, for --resume
 
@@ -63,6 +63,10 @@ class MaterialDriver:
     def skip_rest(self) -> None:
         """End the schedule now (a diffuse-only scene has no specular lobe to texture)."""
         self.schedule.stage = "done"
+
+    def skip_to(self, stage: str) -> None:
+        """Go on to ``stage`` now (MaterialSchedule.skip_to)."""
+        self.schedule.skip_to(stage)
 
     def refine(self, last: str = "specular") -> None:
         """The surface moved under the finished material: its last stage runs again."""

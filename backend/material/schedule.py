@@ -76,6 +76,12 @@ class MaterialSchedule:
         self.stage, self.cycle, self.stale, self.best, self.patience = stage, 0, 0, math.inf, 1
         self.cycle_limit = cycles
 
+    def skip_to(self, stage: str) -> None:
+        """Start ``stage`` now (a later one than the current), e.g. when the time left holds
+        only one more cycle and the last stage has not had its turn."""
+        if self.STAGES.index(stage) > self.STAGES.index(self.stage):
+            self.stage, self.cycle, self.stale, self.best, self.cycle_limit = stage, 0, 0, math.inf, None
+
     def on_remesh(self) -> None:
         """The material restarted from grey: a short constant stage, then textures again."""
         self.stage, self.cycle, self.stale, self.best = "constant", 0, 0, math.inf

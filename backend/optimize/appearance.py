@@ -163,6 +163,19 @@ class Appearance:
         if self.driver is not None:
             self.driver.finalise(self._last_stage())
 
+    def last_stage_due(self) -> bool:
+        """Whether the schedule is on the final geometry and short of its last stage."""
+        if self.driver is None or self.driver.done or not self.driver.schedule.final:
+            return False
+        stages = self.driver.schedule.STAGES
+        return stages.index(self.driver.stage) < stages.index(self._last_stage())
+
+    def hurry(self) -> None:
+        """Too little time is left for the current stage and the last one: the last stage
+        (which fits every channel) runs next."""
+        if self.last_stage_due():
+            self.driver.skip_to(self._last_stage())
+
     def refine_material(self) -> None:
         """The surface moved under the finished material: its last stage runs again."""
         if self.driver is not None:

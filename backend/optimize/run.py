@@ -40,6 +40,10 @@ from .stiffness import choose as choose_stiffness
 from .transition import transition
 from .views import ViewSet
 
+# a cycle of the last material stage costs about this many cycles of an earlier one (it
+# fits specular and roughness textures besides the albedo)
+LAST_STAGE_COST = 1.5
+
 
 @dataclasses.dataclass
 class Result:
@@ -235,6 +239,10 @@ class Reconstruction:
         for _ in range(most):
             if self.budget.out() or not self.budget.fits(last):
                 break
+            # the last stage (specular: every channel, highlights included) must have its turn:
+            # an earlier stage begins only when this cycle and one of the last stage both fit
+            if self.appearance.last_stage_due() and not self.budget.fits(last * (1 + LAST_STAGE_COST)):
+                self.appearance.hurry()
             result = self.appearance.material_cycle(s.mesh, self.material, views, s.level)
             if result is None:
                 break

@@ -354,3 +354,14 @@ def test_robust_loss_resists_a_few_wrong_pixels():
         else:
             shift_robust = np.abs(constants(spoiled, robust) - clean).max()
     assert shift_robust < 0.5 * shift_l2
+
+
+def test_skip_to_starts_a_later_stage_and_never_goes_back():
+    s = MaterialSchedule(constant_cycles=1, patience=2)
+    s.report(10)
+    s.report(9)
+    assert s.stage == "diffuse" and s.cycle == 1
+    s.skip_to("specular")
+    assert (s.stage, s.cycle, s.stale) == ("specular", 0, 0)
+    s.skip_to("diffuse")  # an earlier stage: ignored
+    assert s.stage == "specular"
