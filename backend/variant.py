@@ -4,11 +4,13 @@
 ``--variant`` option or the ``SFT_VARIANT`` environment variable. Dr.Jit's LLVM backend
 needs libLLVM >= 17; the one shipped in the virtual environment is used when present.
 Dr.Jit reads ``DRJIT_LIBLLVM_PATH`` when it is first imported, so ``backend/__init__``
-configures it before anything imports drjit."""
+configures it before anything imports drjit. :func:`readiness` is the ``check`` command's
+report: whether this interpreter can run the backend at all."""
 
 from __future__ import annotations
 
 import glob
+import importlib
 import os
 import sys
 from pathlib import Path
@@ -16,6 +18,7 @@ from pathlib import Path
 from .errors import InputError
 
 _chosen: str | None = None
+MODULES = ["numpy", "mitsuba", "drjit", "pymeshlab", "pycolmap", "OpenEXR", "cholespy", "PIL", "scipy", "av"]
 
 
 def _find_libllvm() -> str | None:
@@ -79,3 +82,28 @@ def choose(requested: str | None = None, announce=None) -> str:
     if announce:
         announce("variant", variant=variant, llvm=os.environ.get("DRJIT_LIBLLVM_PATH"))
     return variant
+
+
+def readiness(requested: str | None = None) -> dict:
+    """Whether this interpreter can run the backend: its Python, each needed module's version
+    (or why it cannot load), the variant :func:`choose` picks and whether CUDA works; ``ok``
+    when nothing is missing."""
+    report = {"python": sys.version.split()[0], "executable": sys.executable, "missing": [], "versions": {}}
+    for name in MODULES:
+        try:
+            mod = importlib.import_module(name)
+            report["versions"][name] = getattr(mod, "__version__", "ok")
+        except Exception as err:  # any import failure means the module is unusable
+            report["missing"].append(f"{name} ({err.__class__.__name__}: {err})")
+    if "mitsuba" in report["versions"]:
+        try:
+            report["variant"] = choose(requested)
+            import drjit as dr  # only here: Dr.Jit reads DRJIT_LIBLLVM_PATH when first imported
+
+            report["cuda"] = bool(dr.has_backend(dr.JitBackend.CUDA))
+            if report["variant"].startswith("llvm"):
+                report["llvm_version"] = ".".join(map(str, dr.detail.llvm_version()))
+        except Exception as err:
+            report["missing"].append(f"mitsuba variant ({err})")
+    report["ok"] = not report["missing"]
+    return report

@@ -57,7 +57,7 @@ def _ensure(name: str, root: Path, emit) -> Path:
 
 
 def _score(run: Path, capture: Path) -> dict:
-    from ..commands.evaluate import evaluate
+    from ..metrics.evaluate import evaluate
 
     report = evaluate(run, capture, samples=50_000)
     own = json.loads((run / "report.json").read_text())

@@ -1,7 +1,8 @@
 """Writing a capture into a folder in our format (the ``import`` and ``capture-from-video``
 commands): frames copied as they are where possible; frames with lens distortion or
 non-square pixels resampled to an ideal pinhole camera; ``max_size`` downscales (box filter,
-in linear light). Masks are always written as 8-bit PNGs."""
+in linear light). Masks are always written as 8-bit PNGs. :func:`import_capture` is the
+``import`` command's whole job: any importable source to a new, validated capture folder."""
 
 from __future__ import annotations
 
@@ -11,11 +12,41 @@ from pathlib import Path
 import numpy as np
 from PIL import Image
 
+from .. import fsio
+from ..errors import require
+from .format import FILENAME, save_capture
 from .images import read_mask, read_rgba, srgb_to_linear, write_image, write_mask
+from .importers import import_any
+from .load import load_capture
 from .model import Capture, Environment, Frame
 from .undistort import needs_resampling, pinhole, resample
+from .validate import validate_capture
 
 COPYABLE = {".png", ".jpg", ".jpeg", ".exr", ".hdr"}
+
+
+def import_capture(source: Path, out: Path, max_size: int | None = None, frames: int | None = None,
+                   images: str | None = None, overwrite: bool = False) -> Capture:
+    """Write the capture at ``source`` (any importable layout) into the new folder ``out``:
+    ``frames`` evenly spaced frames, downscaled to ``max_size``. ``out`` appears only once it
+    is complete and reads back validated. Returns the capture as written."""
+    require(max_size is None or max_size >= 8, None, f"--max-size {max_size} is too small", "give at least 8 pixels")
+    require(frames is None or frames >= 1, None, f"--frames {frames} is below 1", "give 1 or more")
+    with fsio.atomic_dir(Path(out), replace=overwrite) as tmp:
+        work = tmp / ".import"
+        capture = read_source(Path(source), work, images)
+        validate_capture(capture)
+        written = convert(select(capture, frames), tmp, max_size)
+        shutil.rmtree(work, ignore_errors=True)
+        save_capture(written)
+        load_capture(tmp)  # what we wrote must read back and validate
+    return written
+
+
+def read_source(src: Path, workdir: Path, images: str | None) -> Capture:
+    if (src.is_dir() and (src / FILENAME).is_file()) or src.name == FILENAME:
+        return load_capture(src, validate=False)
+    return import_any(src, workdir=workdir, images=images)
 
 
 def select(capture: Capture, count: int | None) -> Capture:

@@ -1,12 +1,11 @@
-"""Report, as one JSON object on stdout, whether this interpreter can run the backend."""
+"""Report, as one JSON object on stdout, whether this interpreter can run the backend
+(:func:`backend.variant.readiness`); exit code 1 when it cannot."""
 
 from __future__ import annotations
 
-import importlib
 import json
-import sys
 
-MODULES = ["numpy", "mitsuba", "drjit", "pymeshlab", "pycolmap", "OpenEXR", "cholespy", "PIL", "scipy", "av"]
+from ..variant import readiness
 
 
 def add_arguments(parser):
@@ -14,25 +13,6 @@ def add_arguments(parser):
 
 
 def run(args) -> int:
-    report = {"python": sys.version.split()[0], "executable": sys.executable, "missing": [], "versions": {}}
-    for name in MODULES:
-        try:
-            mod = importlib.import_module(name)
-            report["versions"][name] = getattr(mod, "__version__", "ok")
-        except Exception as err:  # any import failure means the module is unusable
-            report["missing"].append(f"{name} ({err.__class__.__name__}: {err})")
-    if "mitsuba" in report["versions"]:
-        from .. import variant
-
-        try:
-            report["variant"] = variant.choose(args.variant)
-            import drjit as dr
-
-            report["cuda"] = bool(dr.has_backend(dr.JitBackend.CUDA))
-            if report["variant"].startswith("llvm"):
-                report["llvm_version"] = ".".join(map(str, dr.detail.llvm_version()))
-        except Exception as err:
-            report["missing"].append(f"mitsuba variant ({err})")
-    report["ok"] = not report["missing"]
+    report = readiness(args.variant)
     print(json.dumps(report))
     return 0 if report["ok"] else 1

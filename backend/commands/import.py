@@ -1,21 +1,14 @@
 """``import SRC --out CAPTURE``: write any importable capture in our format.
 
-The conversion itself is :func:`backend.capture.convert.convert`. The output folder appears
-only once it is complete and validated."""
+The conversion itself is :func:`backend.capture.convert.import_capture`. The output folder
+appears only once it is complete and validated."""
 
 from __future__ import annotations
 
-import shutil
 from pathlib import Path
 
-from .. import fsio
-from ..capture import load_capture
-from ..capture.convert import convert, select
-from ..capture.format import FILENAME, save_capture
-from ..capture.importers import import_any
-from ..capture.model import Capture
-from ..capture.validate import validate_capture
-from ..errors import require
+from ..capture.convert import import_capture
+from ..capture.format import FILENAME
 from ..events import Emitter
 
 
@@ -31,24 +24,8 @@ def add_arguments(parser):
 
 
 def run(args) -> int:
-    require(args.max_size is None or args.max_size >= 8, None, f"--max-size {args.max_size} is too small",
-            "give at least 8 pixels")
-    require(args.frames is None or args.frames >= 1, None, f"--frames {args.frames} is below 1", "give 1 or more")
     out = Path(args.out)
-    with fsio.atomic_dir(out, replace=args.overwrite) as tmp:
-        work = tmp / ".import"
-        capture = read_source(Path(args.source), work, args.images)
-        validate_capture(capture)
-        written = convert(select(capture, args.frames), tmp, args.max_size)
-        shutil.rmtree(work, ignore_errors=True)
-        save_capture(written)
-        load_capture(tmp)  # what we wrote must read back and validate
+    written = import_capture(Path(args.source), out, args.max_size, args.frames, args.images, args.overwrite)
     Emitter()("done", result=str(out / FILENAME), frames=len(written.frames),
               resampled=written.provenance["import"]["resampled_frames"])
     return 0
-
-
-def read_source(src: Path, workdir: Path, images: str | None) -> Capture:
-    if (src.is_dir() and (src / FILENAME).is_file()) or src.name == FILENAME:
-        return load_capture(src, validate=False)
-    return import_any(src, workdir=workdir, images=images)

@@ -5,9 +5,8 @@ from __future__ import annotations
 import dataclasses
 from pathlib import Path
 
-from .. import fsio, variant
 from ..events import Emitter
-from ..synth.capture import SynthSpec, synthesize
+from ..synth.capture import SynthSpec, write_synthetic_capture
 
 
 def add_arguments(parser):
@@ -49,10 +48,5 @@ def spec_from_args(args) -> SynthSpec:
 
 
 def run(args) -> int:
-    emit = Emitter()
-    spec = spec_from_args(args)
-    variant.choose(args.variant, emit)
-    with fsio.atomic_dir(args.out, replace=args.overwrite) as tmp:
-        capture = synthesize(spec, tmp, emit)
-    emit("done", capture=str(args.out), frames=len(capture.frames))
+    write_synthetic_capture(spec_from_args(args), args.out, Emitter(), args.overwrite, args.variant)
     return 0

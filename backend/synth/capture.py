@@ -1,4 +1,7 @@
-"""Render a synthetic capture with ground truth (mesh, material, held-out and relit views)."""
+"""Render a synthetic capture with ground truth (mesh, material, held-out and relit views).
+
+:func:`write_synthetic_capture` is the ``synth`` command's job; :func:`synthesize` renders
+into a folder the caller provides."""
 
 from __future__ import annotations
 
@@ -8,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import __version__, fsio
+from .. import __version__, fsio, variant
 from ..capture.format import save_capture
 from ..capture.images import read_rgba, write_image, write_mask
 from ..capture.model import Camera, Capture, Environment, Frame
@@ -167,4 +170,15 @@ def synthesize(spec: SynthSpec, out: Path, emit) -> Capture:
     if spec.cornell:
         capture.provenance["scene"] = {"cornell": {"centre": centre.tolist(), "half": 2.5 * distance}}
     save_capture(capture)
+    return capture
+
+
+def write_synthetic_capture(spec: SynthSpec, out: Path, emit, overwrite: bool = False,
+                            variant_name: str | None = None) -> Capture:
+    """Choose the Mitsuba variant and render ``spec`` into the new folder ``out``, which
+    appears only once complete; ends with a ``done`` event."""
+    variant.choose(variant_name, emit)
+    with fsio.atomic_dir(out, replace=overwrite) as tmp:
+        capture = synthesize(spec, tmp, emit)
+    emit("done", capture=str(out), frames=len(capture.frames))
     return capture

@@ -1,5 +1,6 @@
 """Backend layering, read from the source (ast): no import cycle between modules, no command
-importing another command, ``geometry`` free of ``render`` and ``synth``."""
+importing another command nor any other module importing a command, commands kept thin
+(argparse, one library call, an exit code), ``geometry`` free of ``render`` and ``synth``."""
 
 from __future__ import annotations
 
@@ -103,6 +104,58 @@ def test_commands_do_not_import_commands():
     bad = [(m, t) for m, ts in graph().items() if m.startswith("backend.commands.")
            for t in ts if t.startswith("backend.commands.")]
     assert not bad, f"commands importing commands: {bad}"
+
+
+def test_only_the_cli_reaches_commands():
+    """Commands are entry points, not libraries: benches and libraries import the library a
+    command calls (the cli loads commands by name, with importlib)."""
+    bad = [(m, t) for m, ts in graph().items() if not m.startswith("backend.commands")
+           for t in ts if t.startswith("backend.commands")]
+    assert not bad, f"modules importing commands (import the library the command calls): {bad}"
+
+
+RUN_LINES = 12  # run(): the library call, printing its result, the exit code
+OTHER_LINES = 20  # everything else but add_arguments: small helpers for --help or for the options
+
+
+def _code_lines(lines: list[str], node: ast.AST) -> int:
+    """Lines of code in a def or class: no docstring, blank or comment-only lines."""
+    body = node.body
+    if body and isinstance(body[0], ast.Expr) and isinstance(body[0].value, ast.Constant) \
+            and isinstance(body[0].value.value, str):
+        body = body[1:]
+    if not body:
+        return 0
+    return sum(1 for line in lines[body[0].lineno - 1:node.end_lineno]
+               if line.strip() and not line.strip().startswith("#"))
+
+
+def _command_sizes() -> dict[str, tuple[int | None, int]]:
+    """{command: (lines of run(), lines of its other defs and classes but add_arguments)}."""
+    out = {}
+    for path in sorted((BACKEND / "commands").glob("*.py")):
+        if path.name == "__init__.py":
+            continue
+        lines = path.read_text(encoding="utf-8").splitlines()
+        defs = [n for n in ast.parse("\n".join(lines)).body
+                if isinstance(n, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef))]
+        run = next((n for n in defs if n.name == "run"), None)
+        out[path.stem] = (None if run is None else _code_lines(lines, run),
+                          sum(_code_lines(lines, n) for n in defs if n.name not in ("run", "add_arguments")))
+    return out
+
+
+def test_commands_are_thin():
+    sizes = _command_sizes()
+    assert {"reconstruct", "evaluate"} <= set(sizes)
+    missing = [name for name, (run, _) in sizes.items() if run is None]
+    assert not missing, f"commands without run(args): {missing}"
+    thick = {name: run for name, (run, _) in sizes.items() if run > RUN_LINES}
+    assert not thick, (f"run() over {RUN_LINES} lines of code: {thick}; move the work into a library "
+                       "module and call it once")
+    helpers = {name: other for name, (_, other) in sizes.items() if other > OTHER_LINES}
+    assert not helpers, (f"over {OTHER_LINES} lines of code beside add_arguments and run: {helpers}; "
+                         "the logic belongs in a library module")
 
 
 def test_geometry_does_not_import_render_or_synth():

@@ -293,7 +293,7 @@ def test_existing_run_folder_needs_resume_or_overwrite(capture, tmp_path):
 
 def test_staged_material_runs_grow_faces_faster_unless_told_otherwise():
     from backend.cli import build_parser
-    from backend.commands.reconstruct import config_from_args
+    from backend.optimize.job import config_from_args
     from backend.optimize.config import STAGED_FACE_GROWTH
 
     def config(*options):
@@ -309,7 +309,7 @@ def test_staged_material_runs_grow_faces_faster_unless_told_otherwise():
 def test_the_recorded_command_names_absolute_paths(tmp_path, monkeypatch):
     """command.json must resume from any working folder (the add-on's is the repository)."""
     from backend.cli import build_parser
-    from backend.commands.reconstruct import absolute_paths
+    from backend.optimize.job import absolute_paths
 
     (tmp_path / "start.ply").write_text("ply")
     monkeypatch.chdir(tmp_path)

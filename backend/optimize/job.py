@@ -1,0 +1,215 @@
+"""The ``reconstruct`` command's job: request (its parsed options) → checked config → run.
+
+:func:`run` takes the command's options (an ``argparse.Namespace`` or anything with the same
+attributes), checks them into a :class:`ReconstructConfig` (defaults, then the preset or the
+one that fits ``--time-budget``, then ``$SFT_RECONSTRUCT_SETTINGS``, then the options given),
+resolves the capture (a folder, or a video written to RUN/capture) and its lighting, and
+either prints ``--plan`` or runs :func:`backend.optimize.run.reconstruct` into the run
+folder, returning its exit code. Shared by the command and anything that starts a run from
+options (:func:`config_from_args` is also what tests and the presets' plan use)."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import os
+from pathlib import Path
+from types import SimpleNamespace
+
+from .. import variant
+from ..capture.format import FILENAME
+from ..capture.load import load_capture
+from ..errors import InputError, require
+from ..events import Emitter
+from ..lighting.setup import resolve_lighting
+from ..video.inputs import check_inputs, write_capture
+from .config import STAGED_FACE_GROWTH, ReconstructConfig
+from .plan import capture_plan
+from .presets import DEFAULT, PRESETS, calibrated, load_calibration, preset_for_budget
+from .run_folder import RunFolder
+
+OVERRIDES = ("init", "material", "effects", "initial_faces", "iterations", "seed", "max_size", "coarse_size", "views_per_step",
+             "integrator", "max_depth", "spp", "remesh", "max_levels", "level_iterations", "step", "lambda_",
+             "face_growth", "track_metrics")
+VIDEO_SUFFIXES = {".mp4", ".mov", ".m4v", ".avi", ".mkv", ".webm", ".mts", ".mpg", ".mpeg", ".ogv"}
+DEFAULT_MATERIAL = "staged"
+MATERIAL_ALIASES = {"constant": "auto", "full": "staged"}
+SETTINGS_VARIABLE = "SFT_RECONSTRUCT_SETTINGS"
+PATH_OPTIONS = ("--out", "--masks", "--env", "--init")
+
+
+def choose_preset(args) -> str:
+    """The preset asked for; else, with a time budget, the calibrated one that fits it."""
+    if args.preset:
+        return args.preset
+    return preset_for_budget(args.time_budget) if args.time_budget is not None else DEFAULT
+
+
+def config_from_args(args) -> ReconstructConfig:
+    """Defaults, then the preset, then the options given."""
+    for name in ("max_size", "coarse_size", "views_per_step", "initial_faces", "spp", "max_levels", "iterations",
+                 "time_budget", "max_depth", "level_iterations", "step", "lambda_"):
+        value = getattr(args, name)
+        flag = "--smoothing" if name == "lambda_" else "--" + name.replace("_", "-")
+        require(value is None or value > 0, None, f"{flag} must be positive (got {value})", f"give {flag} a value above 0")
+    growth = args.face_growth
+    require(growth is None or (math.isfinite(growth) and growth > 1), None,
+            f"--face-growth must be above 1 (got {growth})", "give e.g. --face-growth 1.5")
+    values = dict(PRESETS[choose_preset(args)])
+    values.update(settings_from_environment())
+    values.update({k: getattr(args, k) for k in OVERRIDES if getattr(args, k) not in (None, False)})
+    values["material"] = MATERIAL_ALIASES.get(values.get("material"), values.get("material")) or DEFAULT_MATERIAL
+    if args.time_budget is not None:
+        values["time_budget_s"] = 60.0 * args.time_budget
+    config = ReconstructConfig(**values)
+    config.coarse_size = min(config.coarse_size, config.max_size)
+    if config.face_growth is None and config.material == "staged":
+        config.face_growth = STAGED_FACE_GROWTH
+    return config
+
+
+def settings_from_environment() -> dict:
+    """``$SFT_RECONSTRUCT_SETTINGS``: a JSON object of ReconstructConfig fields, checked."""
+    text = os.environ.get(SETTINGS_VARIABLE, "").strip()
+    if not text:
+        return {}
+    fix = f'set {SETTINGS_VARIABLE} to a JSON object such as {{"max_size": 32}}, or unset it'
+    try:
+        values = json.loads(text)
+    except ValueError:
+        raise InputError(None, f"${SETTINGS_VARIABLE} is not JSON", fix) from None
+    require(isinstance(values, dict), None, f"${SETTINGS_VARIABLE} is not a JSON object", fix)
+    known = set(ReconstructConfig.__dataclass_fields__)
+    unknown = sorted(set(values) - known)
+    require(not unknown, None, f"${SETTINGS_VARIABLE} names unknown settings: {', '.join(unknown)}", fix)
+    return values
+
+
+def resumed_material(run: Path) -> str | None:
+    """The material a run started with (its first ``start`` event), or None when unknown."""
+    try:
+        with open(Path(run) / "events.jsonl") as f:
+            for line in f:
+                event = json.loads(line)
+                if event.get("event") == "start":
+                    return (event.get("settings") or {}).get("material")
+    except (OSError, ValueError):
+        return None
+    return None
+
+
+def video_inputs(args):
+    """The checked inputs of ``capture-from-video`` when PATH is a video with --masks, else None."""
+    if args.masks is None:
+        path = Path(args.capture)
+        require(not (path.is_file() and path.suffix.lower() in VIDEO_SUFFIXES), path,
+                "a video needs its object masks", "give --masks MASKS (and the lighting with --env HDR)")
+        return None
+    return check_inputs(SimpleNamespace(capture=args.capture, masks=args.masks, env=args.env,
+                                        env_rotation=args.env_rotation, align_lighting=args.align_lighting))
+
+
+def video_capture(inputs, folder, resume: bool, emit):
+    """RUN/capture written from the video inputs (kept when resuming), loaded."""
+    path = folder.path / "capture"
+    if not (resume and (path / FILENAME).is_file()):
+        write_capture(inputs, path, emit, overwrite=True)
+    return load_capture(path)
+
+
+def absolute_paths(argv: list[str], args) -> list[str]:
+    """``argv`` with the capture and the path options made absolute, so the recorded command
+    resumes from any working folder (``--init`` only when it names an existing file)."""
+    out, previous = [], None
+    for token in argv:
+        option, eq, value = token.partition("=")
+        if eq and option in PATH_OPTIONS:
+            token = f"{option}={_absolute(option, value)}"
+        elif previous in PATH_OPTIONS:
+            token = _absolute(previous, token)
+        elif not token.startswith("-") and Path(token) == args.capture:
+            token = os.path.abspath(token)
+        out.append(token)
+        previous = token
+    return out
+
+
+def _absolute(option: str, value: str) -> str:
+    return value if option == "--init" and not Path(value).is_file() else os.path.abspath(value)
+
+
+def run(args) -> int:
+    """One ``reconstruct`` request, start to end: its exit code (0 done, 130 cancelled; bad
+    input raises :class:`InputError`)."""
+    from ..material.constant import parse_spec  # loads Mitsuba: only once a run starts, not on import
+
+    if args.resume and args.material is None:
+        args.material = resumed_material(args.out)
+    config = config_from_args(args)
+    parse_spec(config.material)  # bad input is reported before anything is written
+    video = video_inputs(args)
+    capture = load_capture(args.capture) if video is None else None
+    config.lighting = resolve_lighting(capture, args.lighting, args.env, args.env_strength, args.env_rotation,
+                                       args.capture, video_light=video is not None and video.environment is not None)
+    chosen = variant.choose(args.variant)
+    from .appearance import Appearance  # these need the Mitsuba variant chosen just above
+    from .run import reconstruct, reported
+
+    if capture is not None:
+        Appearance.check(capture, config)
+    if getattr(args, "plan", False):
+        return _print_plan(args, capture)
+    folder = RunFolder.create(args.out, resume=args.resume, overwrite=args.overwrite)
+    if not args.resume and getattr(args, "argv", None):
+        folder.record_command(absolute_paths(args.argv, args))
+    emit = Emitter(log_path=folder.events)
+    try:
+        with reported(emit):
+            emit("start", run=str(folder.path), capture=str(args.capture), settings=dataclasses.asdict(config))
+            emit("variant", variant=chosen, llvm=os.environ.get("DRJIT_LIBLLVM_PATH"))
+            _preset_event(args, capture, emit, config)
+            if video is not None:
+                capture = video_capture(video, folder, args.resume, emit)
+                Appearance.check(capture, config)
+            return reconstruct(capture, folder, config, emit, resume=args.resume).exit_code
+    finally:
+        emit.close()
+
+
+def _preset_configs(args, names) -> dict:
+    """{preset: its ReconstructConfig with this command line's options}."""
+    return {name: config_from_args(SimpleNamespace(**{**vars(args), "preset": name})) for name in names}
+
+
+def _print_plan(args, capture) -> int:
+    """--plan: each preset's predicted time on this capture (optimize/plan.py), printed; no run."""
+    require(capture is not None, args.capture, "--plan needs a capture folder",
+            "write the capture first (capture-from-video), then plan on it")
+    plan = capture_plan(capture, _preset_configs(args, PRESETS), calibrated())
+    print(plan.table())
+    print(f"{plan.line()} on this capture (step costs measured in {plan.costs.seconds:.1f} s)", flush=True)
+    # the same as one event (docs/protocol.md) for the add-on's Plan button
+    Emitter()("plan", line=plan.line(), **plan.to_json())
+    return 0
+
+
+def _preset_event(args, capture, emit, config) -> None:
+    preset = choose_preset(args)
+    expected = calibrated().get(preset, {})
+    # expected_*: the calibration scene's figures (point-lit: no promise for an HDR-lit capture);
+    # predicted_minutes: this capture's own, from its measured step costs (optimize/plan.py)
+    comparable = capture is not None and capture.environment is None
+    plan = None
+    if capture is not None:
+        plan = capture_plan(capture, {preset: config}, calibrated())
+    emit("preset", preset=preset, chosen_for_budget=args.preset is None and args.time_budget is not None,
+         expected_minutes=expected.get("expected_minutes") if comparable else None,
+         expected_f1=expected.get("expected_f1") if comparable else None,
+         calibrated_on=load_calibration().get("scene"),
+         predicted_minutes=None if plan is None else round(plan.presets[preset].minutes, 2),
+         plan=None if plan is None else {**plan.presets[preset].to_json(), "costs": plan.costs.to_json()},
+         note=None if comparable else "calibrated on a point-lit scene; predicted_minutes is this capture's "
+                                      "own, from its measured step costs" if plan is not None else
+                                      "calibrated on a point-lit scene; the time comes from this capture's "
+                                      "measured steps (eta_s)")
