@@ -10,7 +10,9 @@ added when both meshes carry vertex colours; PSNR/SSIM are added for ``--renders
 of predicted renders of the truth capture's held-out (or relit, ``--views relit``) views named
 ``<frame name>.exr`` (or ``.png``).
 
-For a run folder the final display mesh is rendered at the truth's held-out and relit views.
+For a run folder the final display mesh is rendered at the truth's held-out and relit views,
+and its material, carried onto the true surface, at the held-out views (``true geometry``:
+the PSNR the same material reaches on perfect geometry, so the difference is the geometry's).
 When the run fitted a specular lobe (its display mesh carries a non-zero ``specular``) and the
 truth carries its material, the held-out views are also scored as the paper's Table 1 splits
 them: a diffuse-only and a specular-only pass of both (:mod:`backend.material.passes`)."""
@@ -29,6 +31,7 @@ from ..capture.images import read_linear_rgb, read_mask, write_image
 from ..capture.load import load_capture
 from ..errors import InputError, require
 from ..geometry.mesh import Mesh, load_mesh
+from ..material.transfer import carry_vertex_material
 from . import geometry as geo
 from .image import albedo_rmse, image_metrics
 
@@ -165,6 +168,12 @@ def _run_view_metrics(report: dict, run: Path, capture, gt: Mesh, samples: int, 
         report.setdefault("views", {})[name] = _view_metrics(capture, out, name)
         if name == "held_out" and has_specular_lobe(display) and _material_of(gt) is not None:
             report["views"][name]["components"] = _component_metrics(display, gt, views)
+        if name == "held_out":
+            # the fitted material on the true surface: what the geometry alone costs in PSNR
+            out = run / "renders" / "true_geometry"
+            for frame, image in render_views(carry_vertex_material(display, gt), views).items():
+                write_image(out / f"{frame}.exr", image)
+            report["views"]["true_geometry"] = dict(_view_metrics(capture, out, name), set="true geometry")
 
 
 SPECULAR_FLOOR = 1e-4  # a display mesh whose specular stays below this has no lobe to score

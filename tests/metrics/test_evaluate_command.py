@@ -208,3 +208,28 @@ def test_run_with_specular_lobe_scores_diffuse_and_specular_passes(tiny_capture,
     assert "psnr diffuse" in table and "psnr specular" in table
     report, table = runs["matte"]
     assert "components" not in report["views"]["held_out"] and "psnr diffuse" not in table
+
+
+def test_a_run_is_also_scored_with_its_material_on_the_true_geometry(tiny_capture, tmp_path, capsys):
+    # the truth's material on a shrunken surface: its held-out views miss the silhouettes, the
+    # same material carried back onto the true surface does not
+    from backend.capture import load_capture
+    from backend.geometry.mesh import load_mesh
+
+    truth = load_capture(tiny_capture, validate=False)
+    gt = load_mesh(truth.path(truth.ground_truth["mesh"]))
+    shrunk = gt.copy()
+    centre = gt.vertices.mean(0)
+    shrunk.vertices = (centre + 0.9 * (gt.vertices - centre)).astype(gt.vertices.dtype)
+    run = tmp_path / "run"
+    save_mesh(run / "result.ply", shrunk)
+    save_mesh(run / "snapshots" / "display.ply", shrunk)
+    (run / "snapshot.json").write_text(json.dumps({"mesh": "snapshots/display.ply"}))
+    out = tmp_path / "report.json"
+    assert evaluate(run, "--truth", tiny_capture, "--samples", 1000, "--out", out) == 0, capsys.readouterr().err
+    report, table = json.loads(out.read_text()), capsys.readouterr().out
+    held, bound = report["views"]["held_out"], report["views"]["true_geometry"]
+    assert bound["set"] == "true geometry" and len(bound["views"]) == len(held["views"])
+    assert bound["psnr"] == "inf" or bound["psnr"] > held["psnr"] + 3
+    assert "psnr true geometry" in table
+    assert sorted(p.name for p in (run / "renders" / "true_geometry").iterdir())
