@@ -3,12 +3,16 @@
 Each benchmark is a module ``backend/bench/<name>.py`` whose docstring's first line
 describes it and which defines ``add_arguments(parser)`` and ``run(args) -> int``. Modules
 are found by name, so a new benchmark is a new file; names starting with ``_`` are helpers.
-Keep heavy imports inside ``run`` so listing the benchmarks stays fast."""
+Listing the benchmarks reads their docstrings from the source without importing them, so a
+benchmark's module (and what it imports: Mitsuba, renderers) loads only when it is chosen."""
 
 from __future__ import annotations
 
+import ast
 import importlib
+import importlib.util
 import pkgutil
+from pathlib import Path
 
 
 def names() -> list[str]:
@@ -19,6 +23,11 @@ def load(name: str):
     return importlib.import_module(f"{__name__}.{name}")
 
 
+def doc(name: str) -> str:
+    """The benchmark module's docstring, read from its source (the module is not imported)."""
+    origin = importlib.util.find_spec(f"{__name__}.{name}").origin
+    return ast.get_docstring(ast.parse(Path(origin).read_text(encoding="utf-8")), clean=False) or ""
+
+
 def describe(name: str) -> str:
-    doc = load(name).__doc__ or ""
-    return doc.strip().split("\n")[0]
+    return doc(name).strip().split("\n")[0]

@@ -29,10 +29,26 @@ import subprocess
 import sys
 import threading
 import time
+from dataclasses import asdict, fields
 from pathlib import Path
 
 import numpy as np
 
+from .. import fsio, variant
+from ..capture.images import read_mask, read_rgba
+from ..capture.load import load_capture
+from ..errors import InputError
+from ..geometry.init import initial_mesh
+from ..geometry.mesh import Mesh, load_mesh, save_mesh
+from ..geometry.topology import keep_largest_components
+from ..material.model import MeshColorMaterial
+from ..material.passes import component_renders
+from ..material.transfer import locate
+from ..metrics.geometry import corresponding_albedo, geometry_metrics
+from ..metrics.image import albedo_rmse, image_metrics
+from ..optimize.run_folder import RunFolder
+from ..render.fields import VertexField
+from ..synth.capture import SynthSpec, synthesize
 from ._data import SHARED_DATA
 
 REPO = Path(__file__).resolve().parents[2]
@@ -67,13 +83,6 @@ def _log(message: str) -> None:
 
 def capture_for(name: str, spec, out: Path, emit):
     """The mesh's synthetic capture (synthesised on first use, or when the spec changed)."""
-    from .. import fsio
-    from ..capture.load import load_capture
-    from ..errors import InputError
-    from ..geometry.mesh import load_mesh, save_mesh
-    from ..geometry.topology import keep_largest_components
-    from ..synth.capture import SynthSpec, synthesize
-
     rel, up = MESHES[name]
     source = MESHES_DIR / rel
     if not source.is_file():
@@ -89,8 +98,6 @@ def capture_for(name: str, spec, out: Path, emit):
                       max_depth=spec.max_depth, held_out=spec.held_out, seed=spec.seed)
     if (folder / "capture.json").is_file():
         capture = load_capture(folder)
-        from dataclasses import asdict
-
         if capture.provenance.get("spec") == json.loads(json.dumps(asdict(synth))):
             return capture
     _log(f"[{name}] synthesising {spec.views} views at {spec.resolution} px into {folder}")
@@ -148,8 +155,6 @@ def reconstruct(capture_dir: Path, run: Path, minutes: float, args) -> dict:
 
 
 def _scores(rendered: dict, truth: dict, masks) -> dict:
-    from ..metrics.image import image_metrics
-
     out = {}
     for comp, images in rendered.items():
         s = image_metrics(images, truth[comp], masks)
@@ -159,16 +164,7 @@ def _scores(rendered: dict, truth: dict, masks) -> dict:
 
 def evaluate(name: str, capture, run: Path, spec) -> dict:
     """Table rows for one mesh: initialisation and reconstruction."""
-    from ..capture.load import load_capture
-    from ..capture.images import read_mask, read_rgba
-    from ..geometry.mesh import Mesh, load_mesh
-    from ..material.model import MeshColorMaterial
-    from ..material.passes import component_renders
-    from ..optimize.run_folder import RunFolder
-    from ..metrics.geometry import corresponding_albedo, geometry_metrics
-    from ..metrics.image import albedo_rmse, image_metrics
-    from ..render.fields import VertexField
-    from ..render.views import display_field
+    from ..render.views import display_field  # render/ needs the Mitsuba variant chosen first
 
     report = json.loads((run / "report.json").read_text())
     truth = load_mesh(capture.path(capture.ground_truth["mesh"]))
@@ -215,10 +211,6 @@ def evaluate(name: str, capture, run: Path, spec) -> dict:
 def _specular_mean_scores(mesh, material_file, held, relit, relit_pixels, reference, relit_ref, masks, kw) -> dict:
     """Held-out and relit PSNR with the fitted specular texture replaced by its per-material
     mean (same geometry and albedo): whether the texture generalises beyond its views."""
-    from ..material.model import MeshColorMaterial
-    from ..material.passes import component_renders
-    from ..metrics.image import image_metrics
-
     flat = MeshColorMaterial.load(material_file)
     flat.make_constant("specular")
     full = component_renders(mesh, flat.field, held.frames, components=("full",), **kw)["full"]
@@ -230,9 +222,6 @@ def _specular_mean_scores(mesh, material_file, held, relit, relit_pixels, refere
 
 def _initial_mesh(capture, run: Path, settings: dict):
     """The run's initial mesh, rebuilt as the run built it (cached beside the run)."""
-    from ..geometry.init import initial_mesh
-    from ..geometry.mesh import load_mesh, save_mesh
-
     path = run.parent / f"init_{Path(str(settings['init'])).stem}_{settings['initial_faces']}.ply"
     if path.is_file() and path.stat().st_mtime >= (run / "report.json").stat().st_mtime:
         return load_mesh(path)
@@ -245,9 +234,6 @@ def truth_as_mesh_colors(mesh, fitted, truth):
     """A mesh-colors material laid out like ``fitted`` with every channel set to the truth's
     material at the samples' closest truth surface points: what the reconstructed geometry
     scores with a perfect material of the same resolution (a geometry-only bound)."""
-    from ..material.model import MeshColorMaterial
-    from ..material.transfer import locate
-
     oracle = MeshColorMaterial(mesh, fitted.resolution, fitted.labels, fitted.n_materials)
     face, bary, _ = locate(oracle.layout.sample_positions(mesh.vertices), truth.vertices, truth.faces,
                            exhaustive=False)
@@ -278,11 +264,6 @@ def format_table(results: dict) -> str:
 
 def run(args, spec) -> int:
     """The table for ``spec`` (a ``material.MaterialBench``) over ``args.meshes``."""
-    from dataclasses import fields
-
-    from .. import fsio, variant
-    from ..errors import InputError
-
     variant.choose(args.variant)
     names = [n.strip() for n in args.meshes.split(",") if n.strip()]
     unknown = [n for n in names if n not in MESHES]

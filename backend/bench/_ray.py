@@ -14,7 +14,9 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from .. import variant as variants
 from ..errors import InputError
+from ._machine import REPO
 
 LOCAL = "local"
 
@@ -22,7 +24,7 @@ LOCAL = "local"
 def require_ray():
     """The ray module, or InputError (exit 2, one line) when it is not installed."""
     try:
-        import ray
+        import ray  # here: Ray is optional; only --ray needs it
     except ImportError:
         raise InputError(None, "--ray needs Ray, which is not installed",
                          "pip install ray (into the backend's Python), or leave out --ray to run locally") from None
@@ -33,8 +35,6 @@ def _measure(measure, scene: str, capture: str, setting, out: str, repeats: int,
              eval_spp: int, seed: int) -> dict:
     """One sweep run inside a Ray worker (module level: workers import it by name):
     ``measure`` is sweep.measure (passed by reference, so this module does not import sweep)."""
-    from .. import variant as variants
-
     variants.choose(variant)  # the worker scores the result with Mitsuba, as the driver would
     return measure(scene, Path(capture), setting, Path(out), repeats, repeat_under, variant, eval_spp, seed)
 
@@ -42,8 +42,6 @@ def _measure(measure, scene: str, capture: str, setting, out: str, repeats: int,
 def run_tasks(ray, measure, todo: list[tuple[str, Path, object]], args, on_row) -> None:
     """Run ``measure`` (sweep.measure) for every (scene, capture folder, Setting) of ``todo`` as
     a task; ``on_row(i, scene, setting, row)`` as each finishes (in the order they finish)."""
-    from ._machine import REPO
-
     if not ray.is_initialized():
         address = None if args.ray == LOCAL else args.ray
         ray.init(address=address, include_dashboard=False, log_to_driver=False,

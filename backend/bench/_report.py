@@ -34,7 +34,7 @@ PANELS = (("seconds", "f1", "wall-clock seconds (log)", "F1@0.01 (%)"),
 def plot(rows: list[dict], scene: str, path: Path) -> None:
     """F1@0.01 against wall-clock and against CPU seconds, and relit PSNR against wall-clock;
     each panel's front drawn as a staircase."""
-    import matplotlib
+    import matplotlib  # here: only the plots need matplotlib (slow to load)
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt

@@ -18,7 +18,13 @@ from typing import Callable
 import numpy as np
 
 from .. import fsio
-from ..geometry.mesh import Mesh
+from ..capture.format import save_capture
+from ..capture.images import write_image, write_mask
+from ..capture.model import Capture, Environment, Frame
+from ..geometry.mesh import Mesh, save_mesh
+from ..render.fields import VertexField
+from ..synth import layout, procedural
+from ..synth.capture import SynthSpec, synthesize
 from ._data import SHARED_DATA as SHARED
 
 DRAGON = SHARED / "meshes" / "shapefromtracing" / "dragon.obj"  # Y up (standing along +Y)
@@ -35,8 +41,6 @@ class Scene:
 
 def _synth(**values) -> Callable[[Path, Callable], None]:
     def build(out: Path, emit) -> None:
-        from ..synth.capture import SynthSpec, synthesize
-
         synthesize(SynthSpec(**values), out, emit)
     return build
 
@@ -96,9 +100,7 @@ def corner_mesh(cells: int = 20, thickness: int = 3) -> tuple[Mesh, np.ndarray]:
 def _corner_directions(n: int, offset: float = 0.0) -> np.ndarray:
     """``n`` view directions all around (the outside needs silhouettes too), the spiral's
     +z pole turned onto the corner's open diagonal."""
-    from ..synth.layout import fibonacci_sphere
-
-    d = fibonacci_sphere(n, offset)
+    d = layout.fibonacci_sphere(n, offset)
     axis = np.ones(3) / np.sqrt(3)  # rotate +z onto the corner's open diagonal
     v = np.cross([0.0, 0.0, 1.0], axis)
     vx = np.array([[0, -v[2], v[1]], [v[2], 0, -v[0]], [-v[1], v[0], 0]])
@@ -107,9 +109,6 @@ def _corner_directions(n: int, offset: float = 0.0) -> np.ndarray:
 
 
 def _write_views(root: Path, renderer, cameras, lights, names, seed: int):
-    from ..capture.images import write_image, write_mask
-    from ..capture.model import Frame
-
     frames = []
     for i, (cam, name) in enumerate(zip(cameras, names)):
         rgba = renderer.render_numpy(i, seed=seed * 1000 + i)
@@ -125,13 +124,7 @@ def build_corner(out: Path, emit, views: int = 24, held_out: int = 4, resolution
     """The corner capture: training views under camera-mounted point lights (the paper's
     layout), held-out views likewise, relit views under the second procedural sky alone.
     Rendered with ``max_depth`` path vertices, so the interreflections are all there."""
-    from ..capture.format import save_capture
-    from ..capture.images import write_image
-    from ..capture.model import Capture, Environment
-    from ..geometry.mesh import save_mesh
-    from ..render.fields import VertexField
-    from ..render.scene import RenderSettings, SceneRenderer
-    from ..synth import layout, procedural
+    from ..render.scene import RenderSettings, SceneRenderer  # render/ needs the Mitsuba variant chosen first
 
     mesh, albedo = corner_mesh()
     spec_v = np.full(mesh.n_vertices, specular, np.float32)

@@ -20,8 +20,13 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
-from .. import fsio
+from .. import fsio, variant
+from ..errors import InputError, require
+from ..events import Emitter
 from ..optimize.presets import CALIBRATION_FILE
+from ._machine import code_version, machine, machine_line
+from ._sweep_scenes import SCENES, ensure
+from .sweep import GRIDS, append_result, load_results, measure
 
 REPO = Path(__file__).resolve().parents[2]
 SCENE = "dragon"
@@ -86,8 +91,6 @@ def recommend(name: str, preset_row: dict, rows: list[dict], margin: float) -> d
 
 def calibration(rows: list[dict], machine: dict, scene_description: str, margin: float = 1.0) -> dict:
     """The calibration document from sweep rows of the dragon scene (presets named as in PRESETS)."""
-    from ._machine import machine_line
-
     good = [r for r in rows if r.get("rc") == 0 and r.get("f1") is not None]
     presets = {}
     for name in TARGETS:
@@ -123,12 +126,6 @@ def add_arguments(parser) -> None:
 
 
 def run(args) -> int:
-    from .. import variant
-    from ..errors import InputError, require
-    from ..events import Emitter
-    from ._sweep_scenes import SCENES, ensure
-    from .sweep import GRIDS, append_result, code_version, load_results, machine, measure
-
     emit = Emitter()
     names = [n.strip() for n in args.presets.split(",") if n.strip()]
     unknown = [n for n in names if n not in TARGETS]

@@ -23,7 +23,13 @@ import sys
 import time
 from pathlib import Path
 
+from .. import variant
+from ..errors import InputError
+from ..geometry.mesh import load_mesh, save_mesh
+from ..geometry.topology import genus
+from ..synth.capture import Y_UP_TO_Z_UP
 from ._data import SHARED_DATA
+from ._scenes import divot_capture, divot_depth, torus
 
 PARTS = ("dragon", "colmap", "divot", "genus", "memory")
 DRAGON = SHARED_DATA / "meshes" / "shapefromtracing"
@@ -90,9 +96,6 @@ def _material(spec: str) -> str:
 def run_dragon(args, init: str, name: str) -> dict:
     capture = dragon_capture(args.out, args.data)
     if init == "colmap":
-        from ..geometry.mesh import load_mesh, save_mesh
-        from ..synth.capture import Y_UP_TO_Z_UP
-
         path = args.out / "colmap_dragon_zup.ply"
         save_mesh(path, load_mesh(args.data / "colmap_dragon.obj").transformed(Y_UP_TO_Z_UP))
         init = str(path)
@@ -115,12 +118,7 @@ def run_dragon(args, init: str, name: str) -> dict:
 
 
 def run_divot(args) -> dict:
-    from .. import variant
-
-    variant.choose()
-    from ..geometry.mesh import load_mesh
-    from ._scenes import divot_capture, divot_depth
-
+    variant.choose()  # the divot capture is rendered here, with Mitsuba
     depth, width = 0.15, 0.35
     capture = args.out / "divot_capture"
     if not (capture / "capture.json").is_file():
@@ -138,10 +136,6 @@ def run_divot(args) -> dict:
 
 
 def run_genus(args) -> dict:
-    from ..geometry.mesh import load_mesh, save_mesh
-    from ..geometry.topology import genus
-    from ._scenes import torus
-
     capture = args.out / "torus_capture"
     if not (capture / "capture.json").is_file():
         save_mesh(args.out / "torus.ply", torus())
@@ -168,7 +162,7 @@ from backend.capture import load_capture
 from backend.geometry.init.carve import carve
 from backend.geometry.simplify import simplify
 from backend.geometry.subdivide import midpoint
-from backend.optimize.material import ConstantMaterial
+from backend.material.constant import ConstantMaterial
 from backend.optimize.objective import Objective
 from backend.optimize.steps import VertexOptimizer
 from backend.optimize.views import ViewSet
@@ -211,12 +205,8 @@ def run(args) -> int:
     parts = [p.strip() for p in args.only.split(",") if p.strip()]
     unknown = set(parts) - set(PARTS)
     if unknown:
-        from ..errors import InputError
-
         raise InputError(None, f"unknown part(s) {', '.join(sorted(unknown))}", f"choose from {', '.join(PARTS)}")
     if {"dragon", "colmap", "memory"} & set(parts) and not (args.data / "dragon.obj").is_file():
-        from ..errors import InputError
-
         raise InputError(args.data / "dragon.obj", "dragon mesh not found", "pass --data with the shared meshes")
     results = {}
     for part in parts:

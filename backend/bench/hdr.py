@@ -29,7 +29,20 @@ import os
 import time
 from pathlib import Path
 
+import drjit as dr
+import mitsuba as mi
 import numpy as np
+
+from .. import variant
+from ..capture.images import read_rgba
+from ..capture.model import Environment
+from ..geometry.mesh import Mesh, load_mesh
+from ..geometry.simplify import simplify
+from ..material.constant import ConstantMaterial
+from ..optimize.steps import LaplacianSystem, clip_outliers
+from ..optimize.views import View
+from ..render.fields import ConstantField
+from ..synth import layout
 
 SHARED = Path(os.environ.get("SFT_SHARED_DATA", "/work/shared/data"))
 MESHES = {"armadillo": "meshes/stanford/armadillo_86k.obj", "bob": "meshes/crane/bob/bob_tri.obj"}
@@ -72,12 +85,6 @@ def smooth_field(points: np.ndarray, seed: int, waves: int = 6) -> np.ndarray:
 
 def build_scene(args):
     """(truth mesh, estimate mesh, cameras, environment, env pixels, per-step displacement)."""
-    from ..capture.images import read_rgba
-    from ..capture.model import Environment
-    from ..geometry.mesh import Mesh, load_mesh
-    from ..geometry.simplify import simplify
-    from ..synth import layout
-
     mesh = load_mesh(SHARED / MESHES[args.mesh])
     v = mesh.vertices @ np.array([[1.0, 0, 0], [0, 0, 1.0], [0, -1.0, 0]])  # Y up -> Z up
     lo, hi = v.min(0), v.max(0)
@@ -130,17 +137,12 @@ def add_arguments(parser) -> None:
 
 class _Bench:
     def __init__(self, args):
-        import drjit as dr
-        import mitsuba as mi
-
-        from ..optimize.material import ConstantMaterial
+        # here: render/ and the objective need the Mitsuba variant chosen first
         from ..optimize.objective import Objective
-        from ..optimize.views import View
         from ..render import effects, projective  # noqa: F401  (registers the sft_ integrators)
-        from ..render.fields import ConstantField
         from ..render.scene import RenderSettings, SceneRenderer
 
-        self.dr, self.mi, self.args = dr, mi, args
+        self.args = args
         truth, self.estimate, cams, self.env, self.pixels, self.step_move, self.edge = build_scene(args)
         self.truth_faces = truth.n_faces
         n = len(cams)
@@ -175,11 +177,10 @@ class _Bench:
         if sppc == 0:
             d["sppc"] = 0  # integrator_dict turns 0 into spp
         d.update(props)
-        return obj, self.mi.load_dict(d)
+        return obj, mi.load_dict(d)
 
     # -- one step, timed ---------------------------------------------------------------------
     def step(self, obj, integ, vertices: np.ndarray, view_ids: list[int], seed: int) -> dict:
-        dr, mi = self.dr, self.mi
         v = mi.Float(np.asarray(vertices, np.float32).ravel())
         dr.enable_grad(v)
         obj._set_vertices(v)
@@ -224,7 +225,6 @@ class _Bench:
     # -- reference ---------------------------------------------------------------------------
     def grad_in(self, obj, view: int, n_views: int):
         """dLoss/dImage of a ``--ref-spp`` primal render (fixed for every reference pass)."""
-        dr, mi = self.dr, self.mi
         with dr.suspend_grad():
             img = mi.render(obj.renderer.scene, sensor=obj.renderer.sensors[view], seed=777 + view,
                             spp=self.args.ref_spp, integrator=mi.load_dict({"type": "path", "max_depth": self.args.max_depth,
@@ -236,7 +236,6 @@ class _Bench:
         return mi.TensorXf(dr.grad(img))
 
     def reference(self, obj, integ, vertices: np.ndarray, view_ids: list[int], grads_in, seeds) -> np.ndarray:
-        dr, mi = self.dr, self.mi
         total = np.zeros((len(vertices), 3))
         for seed in seeds:
             v = mi.Float(np.asarray(vertices, np.float32).ravel())
@@ -301,8 +300,6 @@ def _summarise(spec: str, rows: list[dict], base_grads: dict, ref: dict, every: 
 
 
 def run(args) -> int:
-    from .. import variant
-
     variant.choose()
     t_start = time.perf_counter()
     bench = _Bench(args)
@@ -324,8 +321,6 @@ def run(args) -> int:
     ref_share = float(np.linalg.norm(ref_ind) / np.linalg.norm(ref["full"]))
     print(f"reference: {time.perf_counter() - t0:.0f} s; the indirect (shadow) part is {100 * ref_share:.1f} % of "
           f"the reference gradient's norm", flush=True)
-
-    from ..optimize.steps import LaplacianSystem, clip_outliers
 
     system = LaplacianSystem(bench.estimate.faces, len(bench.estimate.vertices), a.smoothing)
 

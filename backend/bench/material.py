@@ -20,7 +20,17 @@ from pathlib import Path
 import numpy as np
 
 from .. import fsio, variant
+from ..capture.images import read_linear_rgb, read_mask, read_rgba
+from ..capture.load import load_capture
 from ..events import Emitter
+from ..geometry.mesh import load_mesh, save_mesh
+from ..material import stages
+from ..material.export import write_glb
+from ..material.model import MeshColorMaterial
+from ..metrics.geometry import corresponding_albedo
+from ..metrics.image import albedo_rmse, image_metrics
+from ..render.fields import VertexField
+from ..synth.capture import SynthSpec, synthesize
 from . import _material_table
 from ._data import SHARED_DATA
 
@@ -87,9 +97,6 @@ def run(args) -> int:
 
 def synthetic_capture(spec: MaterialBench, out: Path, emit):
     """The benchmark's capture (synthesised on first use)."""
-    from ..capture.load import load_capture
-    from ..synth.capture import SynthSpec, synthesize
-
     folder = out / "capture"
     if not (folder / "capture.json").is_file():
         synth = SynthSpec(mesh=spec.mesh, up=spec.up, views=spec.views, resolution=spec.resolution,
@@ -101,16 +108,13 @@ def synthetic_capture(spec: MaterialBench, out: Path, emit):
 
 
 def _views(capture):
-    from ..capture.images import read_linear_rgb, read_mask
-
     images = [read_linear_rgb(f.image) for f in capture.frames]
     masks = [read_mask(f.mask) for f in capture.frames]
     return images, masks
 
 
 def _renders(mesh, field, view_set, spp: int, max_depth: int, seed: int = 900) -> list[np.ndarray]:
-    from ..capture.images import read_rgba
-    from ..render.scene import RenderSettings, SceneRenderer
+    from ..render.scene import RenderSettings, SceneRenderer  # render/ needs the Mitsuba variant chosen first
 
     env = view_set.environment
     pixels = read_rgba(env.path)[0][..., :3] if env else None
@@ -121,16 +125,7 @@ def _renders(mesh, field, view_set, spp: int, max_depth: int, seed: int = 900) -
 
 
 def benchmark(spec: MaterialBench, out: Path, emit) -> dict:
-    from ..capture.load import load_capture
-    from ..capture.images import read_mask, read_rgba
-    from ..geometry.mesh import load_mesh, save_mesh
-    from ..material import stages
-    from ..material.export import write_glb
-    from ..material.model import MeshColorMaterial
-    from ..metrics.geometry import corresponding_albedo
-    from ..metrics.image import albedo_rmse, image_metrics
-    from ..render.fields import VertexField
-    from ..render.scene import RenderSettings, SceneRenderer
+    from ..render.scene import RenderSettings, SceneRenderer  # render/ needs the Mitsuba variant chosen first
 
     start = time.time()
     capture = synthetic_capture(spec, out, emit)

@@ -33,6 +33,12 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from ..errors import InputError
+from ..geometry.mesh import load_mesh
+from ..metrics.geometry import align_by_icp, align_similarity, apply, geometry_metrics
 from ._data import SHARED_DATA as SHARED
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -106,12 +112,6 @@ def _wrap(deg: float) -> float:
 def score(capture_dir: Path, run_dir: Path | None, orbit: Path, index_of: dict[str, int] | None = None) -> dict:
     """Camera, environment and (with a run) geometry errors of the capture against the truth.
     ``index_of`` maps frame names to video frame indices (default: the name is the index)."""
-    import numpy as np
-    from scipy.spatial.transform import Rotation
-
-    from ..geometry.mesh import load_mesh
-    from ..metrics.geometry import align_by_icp, align_similarity, apply, geometry_metrics
-
     truth = json.loads((orbit / "truth.json").read_text())
     doc = json.loads((capture_dir / "capture.json").read_text())
     true_c2w = [np.array(m) for m in truth["camera_to_world"]]
@@ -207,8 +207,6 @@ def print_figures(f: dict) -> None:
 
 
 def run(args) -> int:
-    from ..errors import InputError
-
     for path, what in ((args.mesh, "mesh"), (args.env, "HDR map")):
         if not Path(path).is_file():
             raise InputError(path, f"{what} not found", "pass --mesh/--env, or provide ../shared/data")

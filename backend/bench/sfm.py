@@ -18,7 +18,10 @@ from pathlib import Path
 
 import numpy as np
 
+from .. import fsio, variant
+from ..capture.importers import middlebury, nerf
 from ..metrics.geometry import align_similarity
+from ..video.sfm import solve
 from ._data import SHARED_DATA
 
 SHARED = SHARED_DATA / "captures"
@@ -58,9 +61,6 @@ def compare(poses: dict[str, np.ndarray], truth: dict[str, np.ndarray]) -> dict:
 
 
 def measure(name: str) -> dict:
-    from ..capture.importers import middlebury, nerf
-    from ..video.sfm import solve
-
     source = CAPTURES[name]
     with tempfile.TemporaryDirectory(prefix=f"sfm-{name}-") as work:
         capture = middlebury.load(source, Path(work)) if name == "dino" else nerf.load(source)
@@ -76,8 +76,6 @@ def measure(name: str) -> dict:
 
 
 def run(args) -> int:
-    from .. import variant
-
     variant.choose()
     figures = {}
     print(f"load {os.getloadavg()[0]:.1f}, {os.cpu_count()} cores", flush=True)
@@ -96,7 +94,5 @@ def run(args) -> int:
                      if "tangency_median_px" in sil else "") + ("" if sil["applied"] else f"; not applied: {sil['reason']}"),
                   flush=True)
     if args.out:
-        from .. import fsio
-
         fsio.write_json(args.out, {**figures, "load_average": list(os.getloadavg())})
     return 0

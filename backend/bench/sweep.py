@@ -32,9 +32,19 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import fsio
+from .. import fsio, variant
+from ..capture.images import read_linear_rgb, read_mask
+from ..capture.load import load_capture
+from ..errors import InputError
+from ..events import Emitter
+from ..geometry.mesh import Mesh, load_mesh
+from ..metrics.image import image_metrics
+from ..optimize.config import ReconstructConfig
+from ..optimize.presets import PRESETS
+from . import _report
 from ._machine import REPO, code_version, machine, machine_line  # noqa: F401  (bench/effects imports them from here)
-
+from ._ray import require_ray, run_tasks
+from ._sweep_scenes import SCENES, ensure
 
 
 @dataclass(frozen=True)
@@ -67,9 +77,6 @@ class Setting:
 
     def knobs(self) -> dict:
         """The effective value of every knob: defaults, then the preset, then the options."""
-        from ..optimize.config import ReconstructConfig
-        from ..optimize.presets import PRESETS
-
         c = dataclasses.asdict(ReconstructConfig())
         c.update(PRESETS[self.preset])
         c.update({k: v for k, v in dataclasses.asdict(self).items()
@@ -143,8 +150,6 @@ def result_display(run: Path):
     """The result with its material per vertex: the run's final display mesh when its last
     snapshot is the end of the run, else ``result.ply`` with the constants of ``report.json``'s
     ``material``."""
-    from ..geometry.mesh import Mesh, load_mesh
-
     run = Path(run)
     snap = run / "snapshot.json"
     if snap.is_file():
@@ -167,10 +172,7 @@ def view_scores(run: Path, capture, spp: int = 128) -> dict:
     """PSNR/SSIM of the run's result, rendered with its material, at the capture's ground-truth
     held-out ("novel") and relit views, on the object's masks; path traced with as many
     vertices as the capture was. Empty when the capture has no such views."""
-    from ..capture.load import load_capture
-    from ..capture.images import read_linear_rgb, read_mask
-    from ..metrics.image import image_metrics
-    from ..render.views import render_views
+    from ..render.views import render_views  # render/ needs the Mitsuba variant chosen first
 
     mesh = result_display(run)
     prov = capture.provenance or {}
@@ -193,8 +195,6 @@ def view_scores(run: Path, capture, spp: int = 128) -> dict:
 def measure(scene: str, capture_dir: Path, setting: Setting, out: Path, repeats: int = 1,
             repeat_under: float = 0.0, variant: str | None = None, eval_spp: int = 64, seed: int = 0) -> dict:
     """Run one setting on one scene (repeated while cheap) and score its result."""
-    from ..capture.load import load_capture
-
     safe = setting.name.replace(":", "_").replace("=", "-")
     run = out / "runs" / scene / safe
     runs = [reconstruct_child(capture_dir, run, setting, out / "logs" / scene / f"{safe}.log", seed, variant)]
@@ -247,8 +247,6 @@ def append_result(path: Path, row: dict) -> None:
 
 # -- command ---------------------------------------------------------------------------------------
 def add_arguments(parser) -> None:
-    from ._sweep_scenes import SCENES
-
     parser.add_argument("--grid", choices=sorted(GRIDS), default="quick",
                         help="settings to run: smoke (two tiny ones), quick (Draft and two neighbours), "
                              "full (one knob at a time around Draft, plus Balanced), presets (default: %(default)s)")
@@ -276,17 +274,9 @@ def add_arguments(parser) -> None:
 
 
 def run(args) -> int:
-    from .. import variant
-    from ..errors import InputError
-    from ..events import Emitter
-    from . import _report
-    from ._sweep_scenes import SCENES, ensure
-
     emit = Emitter()
     ray = None
     if getattr(args, "ray", None) is not None:
-        from ._ray import require_ray
-
         ray = require_ray()
     scenes = [s.strip() for s in args.scenes.split(",") if s.strip()]
     unknown = [s for s in scenes if s not in SCENES]
@@ -315,8 +305,6 @@ def run(args) -> int:
                  scene=scene, setting=setting.name, seconds=row["seconds"], f1=row.get("f1"), rc=row["rc"])
 
         if ray is not None:
-            from ._ray import run_tasks
-
             todo_ray = [(scene, ensure(scene, args.out / "scenes", emit), s) for scene, s in todo]
             emit("stage", stage="sweep:ray", level=0, faces=0, runs=len(todo), cpus_per_run=args.cpus_per_run)
             run_tasks(ray, measure, todo_ray, args, record)

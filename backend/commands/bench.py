@@ -23,18 +23,31 @@ def _registry():
     return bench
 
 
+class _BenchParser(argparse.ArgumentParser):
+    """A benchmark's parser: its module is imported and its options added only when the command
+    line chooses it, so listing the benchmarks imports none of them."""
+
+    bench_name: str | None = None
+
+    def parse_known_args(self, args=None, namespace=None):
+        if self.bench_name is not None:
+            module = _registry().load(self.bench_name)
+            self.bench_name = None
+            module.add_arguments(self)
+            self.set_defaults(bench_run=module.run)
+        return super().parse_known_args(args, namespace)
+
+
 def add_arguments(parser):
     bench = _registry()
     parser.set_defaults(bench_parser=parser)
     if bench is None:
         parser.add_argument("rest", nargs=argparse.REMAINDER, help=argparse.SUPPRESS)
         return
-    sub = parser.add_subparsers(dest="bench", metavar="NAME")
+    sub = parser.add_subparsers(dest="bench", metavar="NAME", parser_class=_BenchParser)
     for name in bench.names():
-        module = bench.load(name)
-        p = sub.add_parser(name, help=bench.describe(name), description=module.__doc__)
-        module.add_arguments(p)
-        p.set_defaults(bench_run=module.run)
+        p = sub.add_parser(name, help=bench.describe(name), description=bench.doc(name))
+        p.bench_name = name
 
 
 def run(args) -> int:

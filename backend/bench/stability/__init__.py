@@ -28,6 +28,8 @@ import shutil
 import sys
 from pathlib import Path
 
+from ... import fsio, variant
+from ...errors import InputError
 from .cases import case_names, guarded, isolated, run_case, table  # noqa: F401
 from .checks import material_problems, mesh_checks, read_events, recorder, run_folder_problems  # noqa: F401
 from .pipeline import Setup, config, pipeline_cases, reconstruct  # noqa: F401
@@ -44,16 +46,12 @@ def add_arguments(parser) -> None:
 
 
 def run(args) -> int:
-    from ... import fsio, variant
-
     if args.variant:
         os.environ["SFT_VARIANT"] = args.variant
     variant.choose(args.variant)
     names = args.case or case_names(args.quick)
     for name in names:
         if name not in case_names(args.quick):
-            from ...errors import InputError
-
             raise InputError(None, f"no stability case '{name}'", f"choose from {', '.join(case_names(args.quick))}")
     out = Path(args.out)
     shutil.rmtree(out / "cases", ignore_errors=True)

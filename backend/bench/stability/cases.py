@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+import multiprocessing
 import resource
 import time
 from pathlib import Path
 
+from ...errors import InputError
 from .faults import full_disk, killed_mid_write
 from .gradients import gradient_geometry, gradient_meshcolors
 from .pipeline import pipeline_cases, run_pipeline_case
@@ -28,8 +30,6 @@ def run_case(name: str, work: Path, quick: bool) -> Result:
         return PROCESS_CASES[name](work, quick)
     cases = pipeline_cases(quick)
     if name not in cases:
-        from ...errors import InputError
-
         raise InputError(None, f"no stability case '{name}'", f"choose from {', '.join(case_names(quick))}")
     return run_pipeline_case(name, cases[name], work, quick)
 
@@ -60,8 +60,6 @@ def _child(name: str, work: str, quick: bool, conn) -> None:
 
 def isolated(name: str, work: Path, quick: bool) -> dict:
     """``guarded`` in a fresh process (its own peak memory; a hard crash is a failure too)."""
-    import multiprocessing
-
     ctx = multiprocessing.get_context("spawn")
     receive, send = ctx.Pipe(duplex=False)
     proc = ctx.Process(target=_child, args=(name, str(work), quick, send))

@@ -10,6 +10,10 @@ from pathlib import Path
 
 import numpy as np
 
+from ...geometry.mesh import Mesh, load_mesh
+from ...geometry.topology import inspect
+from ...material import factory
+from ...optimize.run_folder import RunFolder
 from .results import StepLog
 
 
@@ -33,7 +37,7 @@ def material_problems(material) -> list[str]:
 
 def self_intersections(mesh) -> int:
     """Faces that intersect another face of the mesh (pymeshlab)."""
-    import pymeshlab
+    import pymeshlab  # here: heavy, and only this check needs it (as in geometry/)
 
     ms = pymeshlab.MeshSet()
     ms.add_mesh(pymeshlab.Mesh(np.asarray(mesh.vertices, np.float64), np.asarray(mesh.faces, np.int32)))
@@ -42,8 +46,6 @@ def self_intersections(mesh) -> int:
 
 
 def mesh_checks(mesh) -> dict:
-    from ...geometry.topology import inspect
-
     report = inspect(mesh)
     return {"faces": mesh.n_faces, "finite": bool(np.all(np.isfinite(mesh.vertices))),
             "manifold": report.closed_manifold, "issues": report.issues,
@@ -59,8 +61,7 @@ def recorder(inject_nan: set[int] = frozenset(), track_tangles: bool = False):
     outputs (loss, gradients), and otherwise defers to the real objective. ``inject_nan``:
     step indices whose gradient gets a NaN, as a renderer fault would (the loop must skip
     them); ``track_tangles``: count self-intersecting faces at every step (small meshes)."""
-    from ...geometry.mesh import Mesh
-    from ...optimize.objective import Objective
+    from ...optimize.objective import Objective  # here: it needs the Mitsuba variant chosen first
 
     log = StepLog()
 
@@ -114,10 +115,6 @@ def run_folder_problems(run: Path) -> list[str]:
     """Everything in a run folder must be whole: snapshot.json names a loadable mesh of the
     stated size with finite vertices and material in range, the resumable state loads,
     every event line parses and every other file reads (temporary files aside)."""
-    from ...geometry.mesh import load_mesh
-    from ...material import factory
-    from ...optimize.run_folder import RunFolder
-
     run = Path(run)
     problems = []
     temporary = set(temporary_files(run))

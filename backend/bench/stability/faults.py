@@ -11,11 +11,14 @@ import shutil
 import signal
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
 import numpy as np
 
+from ...geometry.mesh import load_mesh, save_mesh
+from ...geometry.topology import inspect
 from .checks import read_events, run_folder_problems, temporary_files
 from .results import KNOWN, REPO, Result
 from .scenes import lit_blob, sphere_init, torus_init
@@ -37,8 +40,6 @@ def _kill_at_write(args: list[str], run: Path, after_snapshots: int, timeout: fl
     """Start the backend and SIGKILL it the moment it starts an atomic write (a new temporary
     file appears in the run folder) once ``after_snapshots`` snapshot events have come. False
     if it ended first."""
-    import threading
-
     proc = subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True, env=_env(), cwd=REPO)
     snapshots = []
     reader = threading.Thread(target=lambda: snapshots.extend(line for line in proc.stdout if '"snapshot"' in line),
@@ -67,9 +68,6 @@ def killed_mid_write(work: Path, quick: bool) -> Result:
     folder is whole (the last snapshot and the saved state load) and the run goes on with
     --resume (or starts over when no state was saved yet). The last resume must finish with
     a valid result."""
-    from ...geometry.mesh import load_mesh, save_mesh
-    from ...geometry.topology import inspect
-
     start = time.perf_counter()
     result = Result("killed_mid_write")
     work = Path(work)
@@ -149,8 +147,6 @@ def full_disk(work: Path, quick: bool) -> Result:
     and one line naming the file and the fix, leave no temporary file and nothing unreadable;
     (b), once space is freed, must resume to a valid result. Where mounting a tmpfs is not
     permitted, (a) runs with a file-size limit instead and (b) is left out."""
-    from ...geometry.mesh import save_mesh
-
     start = time.perf_counter()
     result = Result("full_disk")
     work = Path(work)

@@ -8,6 +8,12 @@ from pathlib import Path
 
 import numpy as np
 
+from ... import variant
+from ...material.constant import ConstantMaterial
+from ...material.model import MeshColorMaterial
+from ...optimize.views import View
+from ...render.fields import ConstantField
+from ...synth.procedural import blob, icosphere
 from .results import GRADIENT_TOLERANCE, KNOWN, Result
 from .scenes import lamp_lights, orbit
 
@@ -15,10 +21,7 @@ from .scenes import lamp_lights, orbit
 # -- gradients against finite differences ------------------------------------------------------------------
 def _target_views(count: int = 2):
     """The blob at 32 px from ``count`` cameras, each under its own lamp: the loss's targets."""
-    from ...optimize.views import View
-    from ...render.fields import ConstantField
-    from ...render.scene import RenderSettings, SceneRenderer
-    from ...synth.procedural import blob
+    from ...render.scene import RenderSettings, SceneRenderer  # render/ needs the Mitsuba variant chosen first
 
     cams = orbit(count, 32)
     lights = lamp_lights(cams)
@@ -46,13 +49,9 @@ def gradient_geometry(work: Path, quick: bool) -> Result:
     """The loop's projective vertex gradient (two views, each under its own lamp, log-tone
     masked loss) against central finite differences of the same loss along smooth
     displacement fields: translations along x, y, z and a bump along the normals."""
-    from ... import variant
-
     variant.choose()
-    from ...optimize.material import ConstantMaterial
-    from ...optimize.objective import Objective
+    from ...optimize.objective import Objective  # here: these need the variant chosen just above
     from ...render.scene import RenderSettings
-    from ...synth.procedural import icosphere
 
     start = time.perf_counter()
     result = Result("gradient_geometry")
@@ -80,13 +79,9 @@ def gradient_meshcolors(work: Path, quick: bool) -> Result:
     random values with a visible highlight; two views, each under its own lamp) against
     central finite differences at 1024 spp along random latent directions, per channel and
     all together."""
-    from ... import variant
-
     variant.choose()
-    from ...material.model import MeshColorMaterial
-    from ...optimize.objective import Objective
+    from ...optimize.objective import Objective  # here: these need the variant chosen just above
     from ...render.scene import RenderSettings
-    from ...synth.procedural import icosphere
 
     start = time.perf_counter()
     result = Result("gradient_meshcolors")

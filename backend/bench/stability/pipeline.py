@@ -12,6 +12,14 @@ from typing import Callable
 
 import numpy as np
 
+from ... import variant
+from ...capture.load import load_capture
+from ...errors import InputError
+from ...events import Emitter
+from ...geometry.mesh import load_mesh, save_mesh
+from ...geometry.topology import inspect
+from ...optimize.config import ReconstructConfig
+from ...optimize.run_folder import RunFolder
 from .checks import read_events, recorder, run_folder_problems
 from .results import KNOWN, Result, StepLog
 from .scenes import (Scene, degenerate_init, grazing_scene, lit_blob, masked_out_scene, meshcolors, near_black_scene,
@@ -36,8 +44,6 @@ class Setup:
 
 def config(quick: bool, **overrides):
     """Tiny (quick) or longer run settings; sphere start, known material, no re-meshing."""
-    from ...optimize.config import ReconstructConfig
-
     values = dict(max_size=size_of(quick), coarse_size=size_of(quick), initial_faces=500 if quick else 2000,
                   spp=4 if quick else 8, sppp=2 if quick else 4, iterations=12 if quick else 120,
                   validation_views=2, validation_spp=4, eval_every=4 if quick else 10, max_levels=2 if quick else 3,
@@ -100,14 +106,9 @@ def pipeline_cases(quick: bool) -> dict[str, Setup]:
 def reconstruct(capture_dir: Path, run_dir: Path, settings, material=None, **record):
     """Run the reconstruction loop in this process as the command does, recording every step.
     Returns (exit code or the InputError raised, StepLog)."""
-    from ... import variant
-    from ...capture.load import load_capture
-    from ...errors import InputError
-    from ...events import Emitter
-    from ...optimize.run import reconstruct as run_reconstruction
-    from ...optimize.run_folder import RunFolder
-
     variant.choose()
+    from ...optimize.run import reconstruct as run_reconstruction  # here: it needs the variant chosen just above
+
     folder = RunFolder.create(run_dir, resume=False, overwrite=False)
     emit = Emitter(log_path=folder.events, quiet=True)
     log, objective = recorder(**record)
@@ -125,10 +126,6 @@ def reconstruct(capture_dir: Path, run_dir: Path, settings, material=None, **rec
 
 def judge(result: Result, log: StepLog, run: Path, outcome, setup: Setup) -> None:
     """The assertions every pipeline case shares."""
-    from ...errors import InputError
-    from ...geometry.mesh import load_mesh
-    from ...geometry.topology import inspect
-
     result.steps = len(log.losses)
     result.notes["max_grad_norm"] = max((g for g in log.grad_norms if math.isfinite(g)), default=None)
     if setup.expect_error is not None:
@@ -187,9 +184,6 @@ def judge(result: Result, log: StepLog, run: Path, outcome, setup: Setup) -> Non
 
 
 def run_pipeline_case(name: str, setup: Setup, work: Path, quick: bool) -> Result:
-    from ... import variant
-    from ...geometry.mesh import save_mesh
-
     variant.choose()
     start = time.perf_counter()
     result = Result(name, notes={"about": setup.about})

@@ -9,6 +9,17 @@ from typing import Callable
 
 import numpy as np
 
+from ... import variant
+from ...capture.format import save_capture
+from ...capture.images import write_image, write_mask
+from ...capture.model import Camera, Capture, Environment, Frame, PointLight
+from ...geometry.mesh import Mesh
+from ...material.model import MeshColorMaterial
+from ...render.fields import ConstantField
+from ...synth.layout import fibonacci_sphere, look_at, orbit_cameras
+from ...synth.procedural import blob, icosphere
+from .._scenes import torus
+
 
 @dataclass
 class Scene:
@@ -27,14 +38,8 @@ class Scene:
     def write(self, out: Path) -> Path:
         """Render the capture into ``out`` (images, masks, capture.json; no ground truth, so the
         loop spends no time on metrics)."""
-        from ... import variant
-
         variant.choose()
-        from ...capture.format import save_capture
-        from ...capture.images import write_image, write_mask
-        from ...capture.model import Capture, Environment, Frame
-        from ...render.fields import ConstantField
-        from ...render.scene import RenderSettings, SceneRenderer
+        from ...render.scene import RenderSettings, SceneRenderer  # here: it needs the variant chosen just above
 
         out = Path(out)
         env = None
@@ -63,32 +68,22 @@ def size_of(quick: bool) -> int:
 
 
 def orbit(n: int, size: int, radius: float = 0.6):
-    from ...synth.layout import fibonacci_sphere, orbit_cameras
-
     return orbit_cameras(fibonacci_sphere(n), np.zeros(3), radius, size)
 
 
 def lamp_lights(cameras, power: float = 2.0):
-    from ...capture.model import PointLight
-
     return [[PointLight(c.centre, np.full(3, power))] for c in cameras]
 
 
 def lit_blob(quick: bool, views: int = 6, **material) -> Scene:
     """The procedural blob (about 1.1 units across) seen from ``views`` cameras around it, a
     lamp at each camera."""
-    from ...synth.procedural import blob
-
     cams = orbit(views, size_of(quick))
     return Scene(blob(3 if quick else 4), cams, lamp_lights(cams), **material)
 
 
 def grazing_scene(quick: bool) -> Scene:
     """A flat disc seen only from 2 to 6 degrees above its plane."""
-    from ...capture.model import Camera
-    from ...synth.layout import look_at
-    from ...synth.procedural import icosphere
-
     size = size_of(quick)
     disc = icosphere(3 if quick else 4, 0.6)
     disc.vertices[:, 2] *= 0.12
@@ -104,8 +99,6 @@ def grazing_scene(quick: bool) -> Scene:
 def masked_out_scene(quick: bool) -> Scene:
     """Six views: two look away from the object (empty frames and masks), one sees it with
     image and mask blanked (the object masked out where it stands)."""
-    from ...synth.layout import look_at
-
     scene = lit_blob(quick)
     for i in (1, 3):
         cam = scene.cameras[i]
@@ -149,9 +142,6 @@ def sun_scene(quick: bool) -> Scene:
 def degenerate_init(quick: bool):
     """A sphere around the object with flipped faces, duplicate vertices, zero-area and sliver
     triangles, a stray triangle through the inside and a non-manifold edge (a fin)."""
-    from ...geometry.mesh import Mesh
-    from ...synth.procedural import icosphere
-
     sphere = icosphere(3, 0.7)
     v, f = sphere.vertices, sphere.faces.copy()
     f[::9] = f[::9, ::-1]
@@ -168,8 +158,6 @@ def degenerate_init(quick: bool):
 def tangled_init(quick: bool):
     """A sphere after an oversized step: a cap of vertices pushed 1.6 radii down through the
     opposite side, so the surface intersects itself."""
-    from ...synth.procedural import icosphere
-
     mesh = icosphere(3, 0.7)
     cap = mesh.vertices[:, 2] > 0.35
     mesh.vertices[cap, 2] -= 1.6 * 0.7
@@ -179,8 +167,6 @@ def tangled_init(quick: bool):
 def swallowing_init(quick: bool):
     """A sphere over the object that also swallows the first camera (a mesh in the wrong place
     or units), while the other cameras still see it."""
-    from ...synth.procedural import icosphere
-
     eye = orbit(6, size_of(quick))[0].centre
     mesh = icosphere(3, 0.6 * np.linalg.norm(eye))
     mesh.vertices += 0.5 * eye
@@ -189,8 +175,6 @@ def swallowing_init(quick: bool):
 
 def sphere_init(radius: float, subdivisions: int = 3):
     def build(quick: bool):
-        from ...synth.procedural import icosphere
-
         return icosphere(subdivisions, radius)
 
     return build
@@ -199,8 +183,6 @@ def sphere_init(radius: float, subdivisions: int = 3):
 def torus_init(faces: int):
     """A torus of about ``faces`` faces around the object."""
     def build(quick: bool):
-        from .._scenes import torus
-
         n_minor = max(8, int(round(np.sqrt(faces / 5))))
         return torus(0.45, 0.25, max(8, int(round(faces / 2 / n_minor))), n_minor)
 
@@ -210,8 +192,6 @@ def torus_init(faces: int):
 def meshcolors(resolution: int):
     """Mesh colors at ``resolution`` on the initial mesh, every channel spatial and estimated."""
     def build(mesh):
-        from ...material.model import MeshColorMaterial
-
         material = MeshColorMaterial(mesh, resolution)
         for name in material.CHANNELS:
             material.make_spatial(name)
