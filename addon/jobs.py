@@ -12,7 +12,7 @@ from pathlib import Path
 
 import bpy
 
-from . import interpreter, scene_mesh
+from . import accuracy, interpreter, scene_mesh
 from .errors import AddonInputError
 from .ply import read_display_mesh
 from .process import BackendProcess
@@ -76,13 +76,18 @@ class ReconstructJob(Job):
         self.applied: str | None = None  # the snapshot mesh now in the scene
         self.apply_seconds: list[float] = []  # main-thread cost of each update
         super().__init__(python, args, run_dir, "reconstruct", root)
+        accuracy.clear()  # the curve shown is this run's
 
     def on_events(self, context, events):
         if any(e.get("event") == "snapshot" for e in events):
             self.apply_latest(context)
+        if any(e.get("event") == "accuracy" for e in events):
+            accuracy.show(self.run_dir)  # the backend redrew RUN/accuracy_time.png before the event
 
     def on_finish(self, context):
         self.apply_latest(context)
+        if self.state.accuracy:
+            accuracy.show(self.run_dir)
 
     def apply_latest(self, context) -> bool:
         """Show the newest snapshot if it is not shown yet; True when the scene changed."""

@@ -30,6 +30,7 @@ class RunState:
     effects: str = ""  # the light-transport effects being simulated, from the newest `effects` event
     smoothing: str = ""  # the vertex steps' Large Steps smoothing, from the `stiffness` event
     done: dict = field(default_factory=dict)  # the `done` event
+    accuracy: list = field(default_factory=list)  # (seconds, held-out PSNR) of the `accuracy` events
     started: float = field(default_factory=time.monotonic)
     _eta_s: float | None = None
     _eta_at: float = 0.0
@@ -67,6 +68,9 @@ class RunState:
             note = (" (given)" if "given" in reason else
                     " (textured, one constant material)" if "constant material" in reason else "")
             self.smoothing = f"λ {float(event.get('lambda') or 0):g}{note}"
+        elif kind == "accuracy":
+            if event.get("psnr") is not None:
+                self.accuracy.append((float(event.get("seconds") or 0.0), float(event["psnr"])))
         elif kind == "warning":
             self.warnings.append(str(event.get("message", "")))
         elif kind == "error":
@@ -93,6 +97,25 @@ class RunState:
                 self.message = f"the backend exited with code {returncode}"
                 self.message += f"; log: {log_tail}" if log_tail else ""
         self._eta_s, self._eta_at = 0.0, time.monotonic()
+
+    def accuracy_text(self) -> str:
+        """One line for the panel, e.g. 'Held-out PSNR 24.3 dB (+7.1 dB in 5m 10s, 12 scores)'."""
+        if not self.accuracy:
+            return ""
+        (t0, first), (t1, last) = self.accuracy[0], self.accuracy[-1]
+        return (f"Held-out PSNR {last:.1f} dB ({last - first:+.1f} dB in {format_duration(t1 - t0)}, "
+                f"{len(self.accuracy)} scores)")
+
+    def next_level_text(self) -> str:
+        """What the level a time budget cut off was expected to buy (the `done` event), or ''."""
+        estimate = self.done.get("next_level") or {}
+        if not estimate:
+            return ""
+        gain = estimate.get("psnr_gain_db")
+        drop = estimate.get("validation_loss_drop")
+        bought = (f"~{gain:+.1f} dB" if gain is not None else
+                  f"~{100 * drop:.0f} % lower loss" if drop is not None else "more")
+        return f"Next level ({estimate.get('size')} px) would have bought {bought} (extrapolated)"
 
     def stopping(self) -> None:
         if self.status in (STARTING, RUNNING):

@@ -1,7 +1,7 @@
 """Scene settings shown in the sidebar (``scene.sft``)."""
 
 import bpy
-from bpy.props import EnumProperty, FloatProperty, IntProperty, PointerProperty, StringProperty
+from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, PointerProperty, StringProperty
 
 from .presets import PRESETS
 
@@ -61,6 +61,11 @@ class SFT_SceneSettings(bpy.types.PropertyGroup):
     time_budget: FloatProperty(name="Time Budget", default=30.0, min=0.0, soft_max=240.0, precision=0,
                                description="Minutes for the whole reconstruction: it stops then with the best "
                                            "mesh so far (0: until converged)")
+    track_accuracy: BoolProperty(
+        name="Track Accuracy", default=True,
+        description="Score views the run does not fit every 30 s and draw held-out PSNR against time "
+                    "(RUN/accuracy_time.png; scoring time is not charged to the budget). A capture with "
+                    "ground-truth held-out views scores those; otherwise every 8th view is held out of the fit")
     material: EnumProperty(name="Material", items=MATERIALS, default="FULL",
                            description="What the material model fits")
     init: EnumProperty(name="Initialisation", items=INITS, default="AUTO", description="The starting mesh")

@@ -33,10 +33,13 @@ INIT_OPTIONS = {"CARVE": "carve", "SPHERE": "sphere", "POINTS": "points"}
 
 
 def method_args(sft, init_mesh: Path | None = None) -> list[str]:
-    """The panel's method settings as backend options: budget, material, start, effects, lighting."""
+    """The panel's method settings as backend options: budget, accuracy tracking, material, start,
+    effects, lighting."""
     args = []
     if sft.time_budget > 0:
         args += ["--time-budget", f"{sft.time_budget:g}"]
+    if sft.track_accuracy:
+        args += ["--track-accuracy"]
     args += ["--material", "staged" if sft.material == "FULL" else "constant"]
     if init_mesh is not None:
         args += ["--init", str(init_mesh)]

@@ -2,10 +2,12 @@
 
 import bpy
 
+from .. import accuracy
 from . import panels
 
 
 def register():
+    accuracy.register()
     for cls in panels.CLASSES:
         bpy.utils.register_class(cls)
 
@@ -13,3 +15,4 @@ def register():
 def unregister():
     for cls in reversed(panels.CLASSES):
         bpy.utils.unregister_class(cls)
+    accuracy.unregister()

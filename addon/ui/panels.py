@@ -4,7 +4,7 @@ from pathlib import Path
 
 import bpy
 
-from .. import frames, jobs, presets, progress, scene_cameras, scene_mesh
+from .. import accuracy, frames, jobs, presets, progress, scene_cameras, scene_mesh
 from ..operators import reconstruct
 
 CATEGORY = "Shape from Tracing"
@@ -37,6 +37,18 @@ def _draw_job(layout, job: jobs.Job | None, cancel: str | None = None) -> bool:
     icon = {"done": "CHECKMARK", "cancelled": "CANCEL"}.get(state.status, "ERROR")
     col.label(text=state.headline(), icon=icon)
     return False
+
+
+def _draw_accuracy(layout, job: jobs.Job | None) -> None:
+    """Held-out PSNR against time (Track Accuracy): the backend's figure, updated in place."""
+    if job is None or not job.state.accuracy:
+        return
+    box = layout.box().column(align=True)
+    if accuracy.shown():
+        box.template_icon(icon_value=accuracy.icon_id(), scale=9.0)
+    box.label(text=job.state.accuracy_text(), icon="GRAPH")
+    if job.state.next_level_text():
+        box.label(text=job.state.next_level_text(), icon="TIME")
 
 
 class SFT_PT_capture(_Panel, bpy.types.Panel):
@@ -104,6 +116,7 @@ class SFT_PT_reconstruct(_Panel, bpy.types.Panel):
             row.label(text=sft.plan_text or "This capture: press Plan", icon="TIME")
             row.operator("sft.plan", text="Plan", icon="PREVIEW_RANGE")
         col.prop(sft, "time_budget", text="Time Budget (min, 0 = until converged)")
+        col.prop(sft, "track_accuracy")
         col.prop(sft, "material")
         col.prop(sft, "init")
         if sft.init == "OBJECT":
@@ -123,6 +136,7 @@ class SFT_PT_reconstruct(_Panel, bpy.types.Panel):
             if reconstruct.resumable(sft.run_dir):
                 row.operator("sft.reconstruct_resume", icon="FILE_REFRESH")
         _draw_job(layout, job, cancel="sft.reconstruct_cancel")
+        _draw_accuracy(layout, job)
         obj = bpy.data.objects.get(scene_mesh.OBJECT_NAME)
         if obj is not None and obj.type == "MESH" and obj.data.polygons:
             layout.label(text=f"{len(obj.data.polygons)} faces", icon="MESH_DATA")

@@ -92,6 +92,13 @@ def add_arguments(parser):
                         help="re-mesh between levels: when inconsistent (auto, the default), always or never")
     parser.add_argument("--track-metrics", action="store_true",
                         help="with ground truth: metrics after every level (time not charged to the budget)")
+    parser.add_argument("--track-accuracy", action="store_true",
+                        help="score held-out views every 30 s of run time and at every level's and stage's end "
+                             "(time not charged to the budget): accuracy events, report.json accuracy_time and "
+                             "RUN/accuracy_time.png. The capture's ground-truth held-out views when it has them, "
+                             "else every 8th view (--held-out-every), which is then not fitted")
+    parser.add_argument("--held-out-every", type=int, metavar="K",
+                        help=f"with --track-accuracy: hold out every K-th view ({d.held_out_every}; 2K views needed)")
     parser.add_argument("--variant", help="Mitsuba variant (default: automatic)")
     parser.add_argument("--plan", action="store_true",
                         help="measure this capture's step costs, print each preset's predicted time and exit "

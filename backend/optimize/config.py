@@ -80,4 +80,12 @@ class ReconstructConfig:
     snapshot_every_s: float = 1.0  # the add-on streams an update every second...
     snapshot_share: float = 0.05  # ...or less often, so that writing snapshots takes at most this share of the time
     track_metrics: bool = False  # metrics after every level (time excluded from the budget)
+    # held-out PSNR against run time (backend.optimize.accuracy; time excluded from the budget):
+    # the capture's ground-truth held-out views, else every held_out_every-th view, not fitted
+    track_accuracy: bool = False
+    held_out_every: int = 8
+    accuracy_every_s: float = 30.0  # seconds of run time between scores (and at every level's and stage's end)
+    accuracy_views: int = 4  # views scored, spread over the held-out ones
+    accuracy_size: int = 128  # long side of the scored images (at most max_size)
+    accuracy_spp: int = 16
 

@@ -31,7 +31,7 @@ from .run_folder import RunFolder
 
 OVERRIDES = ("init", "material", "effects", "initial_faces", "iterations", "seed", "max_size", "coarse_size", "views_per_step",
              "integrator", "max_depth", "spp", "remesh", "max_levels", "level_iterations", "step", "lambda_",
-             "face_growth", "track_metrics")
+             "face_growth", "track_metrics", "track_accuracy", "held_out_every")
 VIDEO_SUFFIXES = {".mp4", ".mov", ".m4v", ".avi", ".mkv", ".webm", ".mts", ".mpg", ".mpeg", ".ogv"}
 DEFAULT_MATERIAL = "staged"
 MATERIAL_ALIASES = {"constant": "auto", "full": "staged"}
@@ -53,6 +53,9 @@ def config_from_args(args) -> ReconstructConfig:
         value = getattr(args, name)
         flag = "--smoothing" if name == "lambda_" else "--" + name.replace("_", "-")
         require(value is None or value > 0, None, f"{flag} must be positive (got {value})", f"give {flag} a value above 0")
+    every = args.held_out_every
+    require(every is None or every >= 2, None, f"--held-out-every must be 2 or more (got {every})",
+            "give e.g. --held-out-every 8 (every 8th view held out)")
     growth = args.face_growth
     require(growth is None or (math.isfinite(growth) and growth > 1), None,
             f"--face-growth must be above 1 (got {growth})", "give e.g. --face-growth 1.5")

@@ -106,7 +106,8 @@ class LevelRun:
         self.full, self.recent = self.lr0, []  # a polish round's step and its validation losses
         limit = self.limit()
         vertices = s.mesh.vertices.copy()
-        plateau.update(objective.validation_loss(vertices, val_ids, val_seed, c.validation_spp))
+        run.validation = objective.validation_loss(vertices, val_ids, val_seed, c.validation_spp)
+        plateau.update(run.validation)
         run.emit("stage", stage=self.stage, level=s.level, faces=s.mesh.n_faces, iteration=s.iteration,
                  loss=plateau.best, size=size, seconds=round(run.budget.elapsed(), 3),
                  environment_strength=None if environment is None else environment.strength)
@@ -157,13 +158,15 @@ class LevelRun:
                 run.progress.update(stage=self.stage, level=s.level, iteration=s.level_iteration,
                                     iterations=limit, loss=loss, faces=s.mesh.n_faces)
                 if s.level_iteration % c.eval_every == 0:
-                    val = objective.validation_loss(vertices, val_ids, val_seed, c.validation_spp)
+                    val = run.validation = objective.validation_loss(vertices, val_ids, val_seed, c.validation_spp)
                     vertices, done = self.evaluate(val, vertices, geometry, warmup)
                     if done:
                         break
                 if time.perf_counter() - run.last_snapshot >= run.snapshot_interval():
                     s.mesh = Mesh(vertices, s.mesh.faces)
                     run.snapshot(loss=loss)
+                if run.accuracy.due():  # held-out views scored every accuracy_every_s (--track-accuracy)
+                    run.track("every", Mesh(vertices, s.mesh.faces))
         finally:
             # keep the best surface found so far, also when cancelled
             s.mesh = Mesh(self.best[0], s.mesh.faces)

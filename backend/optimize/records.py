@@ -72,6 +72,7 @@ class RunState:
     seconds_before: float = 0.0  # run time of the runs this one resumes
     appearance: dict | None = None
     material_kind: str | None = None
+    accuracy: dict | None = None  # the held-out series so far (optimize/accuracy.py; --track-accuracy)
 
     def timed(self, name: str, start: float) -> None:
         """Charge the time since ``start`` (perf_counter) to ``timings[name]``."""
@@ -89,7 +90,7 @@ class RunState:
                 "budget": self.budget.state(), "levels": [lv.to_json() for lv in self.levels],
                 "levels_ended": self.levels_ended, "skipped": self.skipped, "timings": self.timings,
                 "init": self.init, "seconds": round(seconds, 3), "appearance": appearance,
-                "material_kind": self.material_kind}
+                "material_kind": self.material_kind, "accuracy": self.accuracy}
 
     @classmethod
     def from_json(cls, state: dict) -> "RunState":
@@ -98,4 +99,4 @@ class RunState:
                    levels=[LevelRecord.from_json(lv) for lv in state["levels"]],
                    levels_ended=state.get("levels_ended"), skipped=state["skipped"], timings=state["timings"],
                    init=state["init"], seconds_before=state["seconds"], appearance=state.get("appearance"),
-                   material_kind=state.get("material_kind"))
+                   material_kind=state.get("material_kind"), accuracy=state.get("accuracy"))

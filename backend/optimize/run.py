@@ -27,6 +27,7 @@ from ..geometry.simplify import FaceBudget
 from ..geometry.topology import enclosed, inspect
 from ..metrics import geometry_metrics
 from ..render.scene import RenderSettings
+from . import accuracy
 from .appearance import Appearance
 from .budget import Budget
 from .config import ReconstructConfig
@@ -96,10 +97,14 @@ class Reconstruction:
 
     def __init__(self, capture: Capture, folder: RunFolder, config: ReconstructConfig, emit,
                  material=None, resume: bool = False, objective_factory=Objective):
+        capture, held = accuracy.split(capture, config)  # --track-accuracy: views held out of every fit
         self.capture, self.folder, self.config = capture, folder, config
         self.state = RunState()
-        emit = StopOnProgress(emit, folder.check_stop, lambda: self.state.phase != "done")
+        self.accuracy = accuracy.AccuracyTracker(held, config)
+        emit = self.accuracy.observe(StopOnProgress(emit, folder.check_stop, lambda: self.state.phase != "done"))
         self.emit = LockedEmitter(emit)
+        if held.note:
+            self.emit("warning", message=held.note)
         self.material = material
         self.resume = resume
         self.objective_factory = objective_factory
@@ -107,6 +112,8 @@ class Reconstruction:
         self.appearance = Appearance(capture, config, emit)
         self.appearance.start_lighting(folder.path, resume)
         self.budget = Budget(config, self.appearance, self.state)
+        self.accuracy.clock = self.budget.elapsed
+        self.validation: float | None = None  # the last validation loss a level computed
         self.truth = self._truth()
         self.last_snapshot = 0.0
         self.snapshot_seconds = 0.0  # what the last snapshot took to write
@@ -118,6 +125,7 @@ class Reconstruction:
         with Progress(self.emit, self.budget.fraction, self.budget.elapsed) as self.progress:
             try:
                 self._start()
+                self.track("resume" if self.resume else "start")
                 self._phases()
             except (KeyboardInterrupt, StopRequested):
                 return self._cancel()
@@ -153,6 +161,7 @@ class Reconstruction:
     def _load_state(self) -> None:
         saved, material_path = self.folder.load_state()
         s = self.state = self.budget.state = RunState.from_json(saved)
+        self.accuracy.restore(s.accuracy)
         self.material = self.appearance.load_material(material_path, self.folder.path)
         s.material_kind = self.material.KIND
         self.emit("stage", stage="resume", level=s.level, faces=s.mesh.n_faces)
@@ -173,7 +182,9 @@ class Reconstruction:
                 if s.phase == "level":
                     record = LevelRun(self)()
                     s.phase = "transition"
-                    self._material_cycle(record)
+                    self.track("level")
+                    if self._material_cycle(record):
+                        self.track("material")
                     self.snapshot(loss=record.loss)
                     s.levels_ended = self._levels_end(record)
                     if s.levels_ended:
@@ -215,20 +226,22 @@ class Reconstruction:
         while s.polished < c.polish_rounds and not self.budget.out(self.budget.polish_reserve()):
             record = PolishRun(self)()
             s.polished += 1
+            self.track("polish")
             self.appearance.refine_material()
             self._finish_materials()
             if record.loss > record.loss_start * (1 - c.polish_tolerance):
                 break
 
-    def _material_cycle(self, record: LevelRecord) -> None:
+    def _material_cycle(self, record: LevelRecord) -> bool:
         """The effects re-checked while the lobe is off, then one stage of the staged material
-        schedule, on this level's geometry and views."""
+        schedule, on this level's geometry and views; whether a cycle ran."""
         s = self.state
         views = self.viewset.at(level_size(s.level, self.config.coarse_size, self.config.max_size))
         self.appearance.recheck(s.mesh, self.material, views, s.level)
         result = self.appearance.material_cycle(s.mesh, self.material, views, s.level)
         if result is not None:
             record.add_cycle(result)
+        return result is not None
 
     def _finish_materials(self, most: int = 12) -> None:
         """Once geometry has converged: material stages until their schedule ends."""
@@ -248,6 +261,7 @@ class Reconstruction:
                 break
             last = result["seconds"]
             s.levels[-1].add_cycle(result)
+            self.track("material")
             self.snapshot(loss=result["loss"])
 
     # -- what the level runs use ---------------------------------------------------------------------
@@ -264,6 +278,21 @@ class Reconstruction:
         s = self.state
         s.skipped += 1
         self.emit("warning", message=f"step {s.iteration} skipped: {why} ({s.skipped} so far)")
+
+    def track(self, why: str, mesh: Mesh | None = None) -> None:
+        """Score the held-out views (--track-accuracy; optimize/accuracy.py) with ``mesh`` (default
+        the state's) and the current material: ``why`` "every" only when the interval has passed,
+        else at a boundary (start, level, material, polish, end). Not charged to the budget."""
+        if not self.accuracy.enabled or (why == "every" and not self.accuracy.due()):
+            return
+        s = self.state
+        start = time.perf_counter()
+        with self.budget.uncharged():
+            point = self.accuracy.score(s.mesh if mesh is None else mesh, self.material, self.capture,
+                                        level=s.level, phase=s.phase, why=why, validation_loss=self.validation,
+                                        folder=self.folder.path)
+        s.timed("accuracy", start)
+        self.emit("accuracy", **point)
 
     def metrics(self, mesh: Mesh) -> dict:
         """Geometry metrics against the ground truth (the default 100k samples, so every
@@ -282,6 +311,7 @@ class Reconstruction:
         s = self.state
         start = time.perf_counter()
         info = {"iteration": s.iteration, "stage": s.phase, "level": s.level, "faces": s.mesh.n_faces, "loss": loss}
+        s.accuracy = self.accuracy.state()
         state = s.to_json(self.budget.elapsed(), self.appearance.state())
         self.appearance.write_lighting(self.folder.path)  # before the snapshot that announces it
         rel = self.folder.snapshot(self.material.display(s.mesh), info, state, self.material)
@@ -304,9 +334,14 @@ class Reconstruction:
     def _finish(self) -> None:
         s = self.state
         s.phase = "done"
+        self.track("end")
         self.snapshot(loss=s.last_loss)
         save_mesh(self.folder.path / "result.ply", s.mesh)
         metrics = self.metrics(s.mesh) if self.truth is not None else None
+        tracked = self.accuracy.report()
+        c = self.config
+        next_level = accuracy.next_level(s.levels, s.levels_ended, (tracked or {}).get("level_gains", []),
+                                         level_size(s.level + 1, c.coarse_size, c.max_size))
         report = {
             "capture": str(self.capture.root), "settings": dataclasses.asdict(self.config),
             "stiffness": self.stiffness.event(),
@@ -318,10 +353,11 @@ class Reconstruction:
                         "metrics_excluded": round(self.budget.excluded, 3)},
             "material": self.material.summary(), "metrics": metrics,
             "premultiplied_views": self.viewset.premultiplied,
+            "accuracy_time": tracked, "next_level": next_level,
             **self.appearance.finish(self.folder.path, s.mesh, self.material),
         }
         fsio.write_json(self.folder.path / "report.json", report)
-        self.emit("done", result="result.ply", report="report.json", metrics=metrics)
+        self.emit("done", result="result.ply", report="report.json", metrics=metrics, next_level=next_level)
 
     def _truth(self) -> Mesh | None:
         rel = self.capture.ground_truth.get("mesh") if self.capture.ground_truth else None

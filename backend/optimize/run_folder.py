@@ -41,7 +41,8 @@ class RunFolder:
             for name in ("snapshots", "state"):
                 for f in sorted((path / name).glob("*")) if (path / name).is_dir() else []:
                     f.unlink()
-            for name in ("events.jsonl", "snapshot.json", "result.ply", "report.json", "STOP", cls.COMMAND):
+            for name in ("events.jsonl", "snapshot.json", "result.ply", "report.json", "accuracy_time.png", "STOP",
+                         cls.COMMAND):
                 (path / name).unlink(missing_ok=True)
         path.mkdir(parents=True, exist_ok=True)
         (path / "STOP").unlink(missing_ok=True)

@@ -74,6 +74,10 @@ def test_reconstruct_operator_runs_headless_path(context, tiny_capture, tmp_path
     assert bpy.ops.sft.reconstruct(run_dir=str(tmp_path / "run")) == {"FINISHED"}
     assert sft.run_dir == str(tmp_path / "run")
     assert len(bpy.data.objects["Reconstruction"].data.polygons) > 0
+    # Track Accuracy is on by default: the capture's ground-truth held-out views were scored
+    series = json.loads((tmp_path / "run" / "report.json").read_text())["accuracy_time"]
+    assert series["source"] == "ground truth" and series["points"]
+    assert (tmp_path / "run" / "accuracy_time.png").is_file()
 
 
 def test_cancel_keeps_last_snapshot(context, addon, extension, tiny_capture, tmp_path):

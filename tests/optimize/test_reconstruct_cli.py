@@ -99,6 +99,9 @@ def test_reconstruct_end_to_end(capture, tmp_path):
     assert report["skipped_steps"] == 0 and report["settings"]["seed"] == 0
     assert set(report["timings"]) >= {"init", "geometry", "total"}
     assert json.loads((run / "command.json").read_text())["argv"][:2] == ["reconstruct", str(capture)]
+    # held-out accuracy is opt-in (--track-accuracy): nothing scored, nothing held out
+    assert report["accuracy_time"] is None and "accuracy" not in kinds and not (run / "accuracy_time.png").exists()
+    assert report["next_level"] is None and done["next_level"] is None
 
 
 def test_snapshots_thin_out_when_writing_them_is_slow():
@@ -130,6 +133,10 @@ def test_time_budget_picks_the_calibrated_preset_and_stops_on_time(capture, tmp_
     assert settings["max_levels"] == PRESETS[chosen["preset"]].get("max_levels", ReconstructConfig().max_levels)
     assert settings["max_size"] == 40  # an explicit option wins over the preset
     assert report["levels_ended"] == "time budget"
+    # what the cut-off level was expected to buy: the last level's own gain, extrapolated
+    estimate = report["next_level"]
+    assert estimate["extrapolated"] and estimate["level"] == report["levels"][-1]["level"] + 1
+    assert "expected to buy" in estimate["line"] and events(run)[-1]["next_level"] == estimate
     assert 60 * minutes - 1 <= report["timings"]["total"] <= 60 * minutes + 8  # the step in flight, then the result
 
 

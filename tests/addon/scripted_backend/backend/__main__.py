@@ -3,7 +3,9 @@
 It follows docs/protocol.md (events on stdout, atomic snapshots, STOP file / SIGTERM,
 exit codes) with known timings and failures, so the add-on's process handle, event
 parsing and snapshot streaming can be tested exactly; the real backend is tested in
-test_end_to_end.py. Modes: ok, crash, bad-input, ignore-stop, split-lines."""
+test_end_to_end.py. Modes: ok, crash, bad-input, ignore-stop, split-lines, accuracy (every
+step also redraws RUN/accuracy_time.png, one colour per step, and emits an ``accuracy``
+event)."""
 
 import argparse
 import json
@@ -44,6 +46,17 @@ def snapshot(run: Path, step: int):
     emit("snapshot", path=rel, iteration=step, faces=2, loss=1.0 / (step + 1))
 
 
+def accuracy_figure(run: Path, step: int):
+    """A 40 x 20 PNG whose red channel is 20 x step, then the ``accuracy`` event."""
+    from PIL import Image  # only this mode draws
+
+    tmp = run / ".accuracy_time.tmp.png"
+    Image.new("RGB", (40, 20), (min(255, 20 * step), 100, 50)).save(tmp)
+    os.replace(tmp, run / "accuracy_time.png")
+    emit("accuracy", seconds=0.5 * step, psnr=15.0 + step, validation_loss=1.0 / step, level=0, stage="geometry",
+         phase="level", why="every", views=2, scoring_seconds=0.01, figure="accuracy_time.png")
+
+
 def main():
     p = argparse.ArgumentParser()
     p.add_argument("command")
@@ -81,6 +94,8 @@ def main():
                 print(line, flush=True)
             print(f"step {step}", file=sys.stderr, flush=True)
             snapshot(run, step)
+            if a.mode == "accuracy":
+                accuracy_figure(run, step)
             if a.mode == "crash" and step == 2:
                 raise RuntimeError("scripted failure in the optimiser")
             if a.mode != "ignore-stop" and (run / "STOP").exists():
@@ -88,7 +103,8 @@ def main():
     except KeyboardInterrupt:
         emit("cancelled", snapshot=f"snapshots/{step:06d}.ply")
         return 130
-    emit("done", result="result.ply", report="report.json", metrics={"f1": 0.5})
+    next_level = {"level": 1, "size": 128, "psnr_gain_db": 1.5, "extrapolated": True} if a.mode == "accuracy" else None
+    emit("done", result="result.ply", report="report.json", metrics={"f1": 0.5}, next_level=next_level)
     return 0
 
 
