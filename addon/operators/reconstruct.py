@@ -48,6 +48,8 @@ def method_args(sft, init_mesh: Path | None = None) -> list[str]:
     args += ["--effects", sft.effects.lower()]
     if sft.lighting == "ESTIMATE":
         args += ["--lighting", "estimate"]
+    elif sft.lighting == "FLASH":
+        args += ["--lighting", "flash"]
     elif sft.env_path:
         args += ["--env", str(abspath(sft.env_path)), "--env-strength", f"{sft.env_strength:g}",
                  "--env-rotation", f"{sft.env_rotation:g}"]

@@ -16,8 +16,9 @@ def add_arguments(parser):
     parser.add_argument("--up", choices=["z", "y"], default=d.up, help="up axis of the mesh file")
     parser.add_argument("--views", type=int, default=d.views, help="cameras on a Fibonacci sphere")
     parser.add_argument("--resolution", type=int, default=d.resolution, help="image width = height, pixels")
-    parser.add_argument("--lighting", choices=["points", "env"], default=d.lighting,
-                        help="two point lights per camera (the paper's layout) or an environment map")
+    parser.add_argument("--lighting", choices=["points", "flash", "env"], default=d.lighting,
+                        help="two point lights per camera (the paper's layout), one at each camera (a flash) "
+                             "or an environment map")
     parser.add_argument("--env", dest="environment", default=d.environment,
                         help="HDR environment map, or 'sky' for the procedural sky")
     parser.add_argument("--env-strength", type=float, default=d.env_strength)

@@ -11,7 +11,7 @@ The material stages fit it by Adam jointly with the material latents (``Environm
 the ``lighting`` argument of ``material.stages.fit``); geometry steps render with the
 current map and leave it fixed. Albedo x light has one free scale: after each stage the map
 and the material are rescaled together so that the object's mean albedo is
-``ALBEDO_CONVENTION`` (the renders do not change)."""
+``ALBEDO_CONVENTION`` (backend.lighting.convention; the renders do not change)."""
 
 from __future__ import annotations
 
@@ -22,11 +22,11 @@ from PIL import Image
 
 from ..capture.images import read_linear_rgb, read_mask, write_image
 from ..capture.model import Capture, Environment
+from .convention import ALBEDO_CONVENTION, describe, normalise_albedo
 
 RESOLUTIONS = ((16, 8), (32, 16), (64, 32))  # (width, height): constant, diffuse, specular stage
 STAGE_RESOLUTION = {"constant": 0, "diffuse": 1, "specular": 2, "done": 2}
-ALBEDO_CONVENTION = 0.5  # the object's mean albedo (over its surface and the three channels)
-CONVENTION = f"mean albedo of the object = {ALBEDO_CONVENTION} (map and albedo rescaled together after each stage)"
+CONVENTION = describe("map")
 INIT_SIZE = 64  # long side of the frames read for the initial map
 BACKGROUND_LEVEL = 1e-4  # a frame this dark outside its mask shows no background (premultiplied)
 FILENAME = "environment.exr"
@@ -127,15 +127,6 @@ def upsample(latent: np.ndarray, width: int, height: int) -> np.ndarray:
     return (top * (1 - fy) + bottom * fy).astype(np.float32)
 
 
-def mean_albedo(material) -> float:
-    """The object's mean albedo: over faces (per-face mean of mesh colors, or the face's
-    material constant) and the three channels."""
-    values = material.values("albedo")
-    if material.channels["albedo"].kind == "colors":
-        return float(values[material.layout.table].mean())
-    return float(values[material.labels].mean())
-
-
 class EstimatedEnvironment:
     """The fitted map: its latent (height, width, 3) = log radiance, where it is written, and the
     history of its fit (``report``)."""
@@ -205,13 +196,7 @@ class EstimatedEnvironment:
         if light != 1.0:
             self.rescale(light)
             material.light_factor = 1.0
-        mean = mean_albedo(material)
-        if not mean > 1e-6:
-            return 1.0
-        s = ALBEDO_CONVENTION / mean
-        for name in ("albedo", "specular"):
-            ch = material.channels[name]
-            material.set_values(name, np.clip(material.values(name) * s, 1e-4, 1 - 1e-4), ch.kind)
+        s = normalise_albedo(material)
         self.rescale(1.0 / s)
         self.scales.append(round(s, 6))
         return s
@@ -222,8 +207,16 @@ class EstimatedEnvironment:
         write_image(path, self.pixels)
         return path
 
+    def save(self, folder: Path) -> Path:
+        """The map into a run folder (``folder``/environment.exr)."""
+        return self.write(Path(folder) / FILENAME)
+
     def state(self) -> dict:
         return {"level": self.level}
+
+    def restore(self, state: dict) -> None:
+        """A resumed run: the coarse-to-fine level (the map itself is read from its file)."""
+        self.level = int(state.get("level", 0))
 
     def report(self) -> dict:
         width, height = self.resolution
@@ -232,6 +225,13 @@ class EstimatedEnvironment:
                 "smoothness": self.smoothness, "initial": self.source, "background_coverage": round(self.seen, 4),
                 "scale_convention": CONVENTION, "albedo_scales": self.scales,
                 "mean_radiance": [round(x, 6) for x in self.mean_radiance()]}
+
+    def event(self) -> dict:
+        """The ``lighting`` event's fields (docs/protocol.md)."""
+        report = self.report()
+        return {"model": "estimate", "resolution": report["resolution"], "initial": report["initial"],
+                "scale_convention": report["scale_convention"], "mean_radiance": report["mean_radiance"],
+                "albedo_scale": self.scales[-1] if self.scales else None}
 
     def fit(self) -> "EnvironmentFit":
         return EnvironmentFit(self)
@@ -266,6 +266,9 @@ class EnvironmentFit:
 
     def present(self, renderer) -> bool:
         return self.KEY in renderer.params
+
+    def prepare(self, renderer, images, weights, views=None) -> None:
+        """Nothing to solve first: the map starts where the last stage left it."""
 
     def initial(self):
         return self.mi.Float(self.estimate.latent.ravel())

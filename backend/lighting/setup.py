@@ -5,6 +5,9 @@
 - ``estimate``: the environment is fitted with the material (backend.lighting.estimate);
   a captured map is withheld (point lights stay). The default when the capture has no light
   and no ``--env`` is given.
+- ``flash``: a point light at every camera centre, its intensity fitted with the material
+  (backend.lighting.flash); the capture's own lights are replaced (placed here at the
+  nominal intensity 1 until the run's initial estimate) and a captured map is withheld.
 - ``none``: no estimate; as ``captured``, a capture without light is an error."""
 
 from __future__ import annotations
@@ -15,12 +18,14 @@ from pathlib import Path
 from ..capture.model import Capture, Environment
 from ..capture.validate import validate_environment
 from ..errors import InputError, require
+from . import flash
 
-MODES = ("captured", "estimate", "none")
+MODES = ("captured", "estimate", "flash", "none")
 HELP = ("the lighting: 'captured' (the capture's environment map and point lights, or --env), 'estimate' (an "
-        "environment map fitted with the material, written as RUN/environment.exr; a captured map is withheld) "
-        "or 'none' (no estimate: a capture without light is an error). Default: estimate when the capture "
-        "has no light and no --env is given, else captured")
+        "environment map fitted with the material, written as RUN/environment.exr; a captured map is withheld), "
+        "'flash' (a point light at every camera, e.g. a phone's flash, its intensity fitted with the material; "
+        "the capture's own lights are replaced) or 'none' (no estimate: a capture without light is an error). "
+        "Default: estimate when the capture has no light and no --env is given, else captured")
 
 
 def default_mode(has_light: bool, env: str | None) -> str:
@@ -44,6 +49,14 @@ def resolve_lighting(capture: Capture | None, mode: str | None, env: str | None 
         require(strength is None, None, "--env-strength needs --env", "drop --env-strength")
         if capture is not None:
             capture.environment = None  # withheld: the map is fitted
+        return mode
+    if mode == "flash":
+        require(env is None, None, "--env lights the capture by a map and --lighting flash by a flash at the "
+                "camera: give one of them", "drop --env to fit a camera flash, or drop --lighting flash to use the map")
+        require(strength is None, None, "--env-strength needs --env", "drop --env-strength")
+        if capture is not None:
+            capture.environment = None  # withheld: the flash is the only light
+            flash.place(capture, 1.0)
         return mode
     if capture is not None:
         relight(capture, env, strength, rotation)

@@ -173,8 +173,9 @@ def fit(renderer, images: list[np.ndarray], weights: list[np.ndarray] | None, ma
         emit=None, views: list[int] | None = None, lighting=None) -> FitResult:
     """Adam on the named channels' latents (and log brightness when ``light``), minimising the
     weighted mean squared error of renders against ``images`` (only the ``views`` among them,
-    when given) plus the variance penalty. ``lighting`` (an estimated environment,
-    backend.lighting.estimate) adds the map's latents and its smoothness penalty to the fit."""
+    when given) plus the variance penalty. ``lighting`` (a fitted lighting model: the estimated
+    environment, backend.lighting.estimate, or the flash, backend.lighting.flash) adds its
+    parameters and penalty to the fit."""
     start = time.time()
     weights = _weights(weights, images)
     opt = mi.ad.Adam(lr=settings.lr, mask_updates=True)
@@ -188,6 +189,7 @@ def fit(renderer, images: list[np.ndarray], weights: list[np.ndarray] | None, ma
         factor = None
     env = lighting.fit() if lighting is not None else None
     if env is not None and env.present(renderer):
+        env.prepare(renderer, images, weights, views)  # a closed-form start where the model has one
         opt[env.NAME] = env.initial()
     else:
         env = None

@@ -21,6 +21,7 @@ from ..capture.model import Capture
 from ..errors import InputError
 from ..lighting.estimate import FILENAME as ESTIMATED_MAP
 from ..lighting.estimate import EstimatedEnvironment
+from ..lighting.flash import Flash
 from ..material import factory
 from ..material.driver import MaterialDriver
 from ..material.export import write_glb
@@ -48,34 +49,37 @@ class Appearance:
         # levels' sizes), then applied again at every later decision
         self.costs: dict | None = None
         self.costs_from: str | None = None  # the decision that measured them
-        self.lighting: EstimatedEnvironment | None = None  # --lighting estimate: the fitted map
+        # the lighting fitted with the material: --lighting estimate's map, --lighting flash's flash
+        self.lighting: EstimatedEnvironment | Flash | None = None
 
     # -- lighting ----------------------------------------------------------------------------------
     def start_lighting(self, folder, resume: bool = False) -> None:
         """``--lighting estimate``: the capture's environment becomes the fitted map (from what
-        the frames show of the background, or the map a resumed run wrote to ``folder``)."""
-        if self.config.lighting != "estimate":
+        the frames show of the background, or the map a resumed run wrote to ``folder``).
+        ``--lighting flash``: every frame is lit by a flash at its camera, at the intensity the
+        frames suggest (a resumed run's comes back with ``restore``)."""
+        if self.config.lighting == "estimate":
+            path = folder / ESTIMATED_MAP
+            self.lighting = (EstimatedEnvironment.load(path) if resume and path.is_file()
+                             else EstimatedEnvironment.initial(self.capture, path))
+            self.capture.environment = self.lighting.environment()
+        elif self.config.lighting == "flash":
+            self.lighting = Flash.initial(self.capture)
+        else:
             return
-        path = folder / ESTIMATED_MAP
-        self.lighting = (EstimatedEnvironment.load(path) if resume and path.is_file()
-                         else EstimatedEnvironment.initial(self.capture, path))
-        self.capture.environment = self.lighting.environment()
         if self.driver is None:
-            self.emit("warning", message="--lighting estimate fits the map in the material stages of "
-                                         "--material staged: this run keeps the initial map")
+            what = "map" if self.config.lighting == "estimate" else "flash intensity"
+            self.emit("warning", message=f"--lighting {self.config.lighting} fits the {what} in the material "
+                                         f"stages of --material staged: this run keeps the initial {what}")
         self._lighting_event("initial")
 
     def _lighting_event(self, when: str, stage: str | None = None) -> None:
-        report = self.lighting.report()
-        self.emit("lighting", when=when, stage=stage, model="estimate", resolution=report["resolution"],
-                  initial=report["initial"], scale_convention=report["scale_convention"],
-                  mean_radiance=report["mean_radiance"],
-                  albedo_scale=report["albedo_scales"][-1] if report["albedo_scales"] else None)
+        self.emit("lighting", when=when, stage=stage, **self.lighting.event())
 
     def write_lighting(self, folder) -> None:
-        """The fitted map as ``folder``/environment.exr (atomic; with every snapshot)."""
+        """The fitted lighting's file in ``folder`` (the map: environment.exr, atomic; with every snapshot)."""
         if self.lighting is not None:
-            self.lighting.write(folder / ESTIMATED_MAP)
+            self.lighting.save(folder)
 
     def lighting_report(self) -> dict:
         if self.lighting is not None:
@@ -211,7 +215,8 @@ class Appearance:
         if self.driver is not None:
             self.driver.restore(state, [v.target for v in views], self._masks(views))
         if self.lighting is not None and state and state.get("lighting"):
-            self.lighting.level = int(state["lighting"].get("level", 0))
+            self.lighting.restore(state["lighting"])
+            self._lighting_event("resumed")
 
     def finish(self, folder, mesh, material) -> dict:
         out = {"effects": self.history, "appearance_seconds": round(self.seconds, 3),

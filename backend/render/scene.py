@@ -105,7 +105,8 @@ class SceneRenderer:
     """Renders one object mesh from a capture's views under their lights.
 
     Per-view point lights are set before each render (the scene holds as many point
-    emitters as the frame with the most lights; unused ones get zero intensity)."""
+    emitters as the frame with the most lights; unused ones get zero intensity), times the
+    ``light_scale`` a fit sets (``set_light_scale``)."""
 
     def __init__(self, mesh: Mesh, field, cameras: list[Camera], lights: list[list[PointLight]],
                  environment: Environment | None = None, settings: RenderSettings | None = None,
@@ -128,6 +129,7 @@ class SceneRenderer:
         self.params = mi.traverse(self.scene)
         self.sensors = [mi.load_dict(sensor_dict(c, self.settings.spp, rgba)) for c in cameras]
         self._light_view = None
+        self.light_scale = None  # a Dr.Jit Color3f times every point light's intensity (a fitted flash)
 
     @property
     def vertex_key(self) -> str:
@@ -144,8 +146,16 @@ class SceneRenderer:
         self.bsdf.field = field
         self.params = mi.traverse(self.scene)
 
+    def set_light_scale(self, scale) -> None:
+        """Every point light's intensity times ``scale`` (a Dr.Jit Color3f, possibly attached to
+        AD: an intensity being fitted) from the next render on; None: the lights as given
+        (re-read, so lights changed in place show)."""
+        self.light_scale = scale
+        self._light_view = None
+
     def _set_lights(self, view: int) -> None:
-        if self._light_view == view or self.n_lights == 0:
+        # a scale attached to AD is set again for every render: a backward pass uses up its graph
+        if (self._light_view == view and self.light_scale is None) or self.n_lights == 0:
             return
         lights = self.lights[view]
         for k in range(self.n_lights):
@@ -154,7 +164,7 @@ class SceneRenderer:
             val = mi.Color3f(*map(float, light.intensity))
             dr.make_opaque(pos, val)
             self.params[f"light{k}.position"] = pos
-            self.params[f"light{k}.intensity.value"] = val
+            self.params[f"light{k}.intensity.value"] = val if self.light_scale is None else val * self.light_scale
         self.params.update()
         self._light_view = view
 

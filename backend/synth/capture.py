@@ -29,7 +29,7 @@ class SynthSpec:
     up: str = "z"  # the mesh file's up axis (y meshes are rotated to Z up)
     views: int = 16
     resolution: int = 128
-    lighting: str = "points"  # "points" (paper layout: 2 per camera) or "env"
+    lighting: str = "points"  # "points" (paper layout: 2 per camera), "flash" (1 at each camera) or "env"
     environment: str = "sky"  # an HDR file, or "sky" for the procedural sky
     env_strength: float = 1.0
     env_rotation_deg: float = 0.0
@@ -129,7 +129,8 @@ def synthesize(spec: SynthSpec, out: Path, emit) -> Capture:
         env_pixels = _environment_pixels(spec.environment, 0)
         env = Environment(out / "env.exr", spec.env_strength, spec.env_rotation_deg)
         write_image(env.path, env_pixels)
-    lights_of = (lambda c: layout.paper_lights(c, intensity)) if spec.lighting == "points" else (lambda c: [])
+    lights_of = {"points": lambda c: layout.paper_lights(c, intensity),
+                 "flash": lambda c: layout.flash_light(c, intensity)}.get(spec.lighting, lambda c: [])
     extra = cornell_shapes(centre, 2.5 * distance) if spec.cornell else None
     settings = RenderSettings(spp=spec.spp, max_depth=spec.max_depth, integrator="path",
                               hide_emitters=True)

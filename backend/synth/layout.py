@@ -46,3 +46,8 @@ def paper_lights(camera: Camera, intensity: float) -> list[PointLight]:
     tangent = camera.camera_to_world[:3, 0]
     power = np.full(3, float(intensity))
     return [PointLight(c.copy(), power), PointLight(c + tangent, power.copy())]
+
+
+def flash_light(camera: Camera, intensity: float) -> list[PointLight]:
+    """A flash: one light at the camera centre (a phone's flash, DTU-like captures)."""
+    return [PointLight(camera.centre, np.full(3, float(intensity)))]

@@ -21,7 +21,7 @@ import mitsuba as mi  # noqa: E402
 from backend.capture.images import read_linear_rgb, write_image, write_mask  # noqa: E402
 from backend.capture.model import Capture, Environment, Frame  # noqa: E402
 from backend.errors import InputError  # noqa: E402
-from backend.lighting import estimate  # noqa: E402
+from backend.lighting import convention, estimate  # noqa: E402
 from backend.lighting.setup import resolve_lighting  # noqa: E402
 from backend.material import stages  # noqa: E402
 from backend.material.model import MeshColorMaterial  # noqa: E402
@@ -113,7 +113,7 @@ def test_normalise_keeps_renders_and_sets_mean_albedo():
     fitted = estimate.EstimatedEnvironment(np.zeros((8, 16, 3), np.float32), Path("e.exr"))
     s = fitted.normalise(material)
     assert s == pytest.approx(0.5 / 0.3, rel=1e-4)
-    assert estimate.mean_albedo(material) == pytest.approx(0.5, rel=1e-3)
+    assert convention.mean_albedo(material) == pytest.approx(0.5, rel=1e-3)
     assert material.light_factor == 1.0
     # albedo x light unchanged: 0.3 x (1 x 2) = 0.5 x radiance
     assert float(fitted.pixels.mean()) == pytest.approx(2.0 * 0.3 / 0.5, rel=1e-3)

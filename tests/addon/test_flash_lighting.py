@@ -1,0 +1,31 @@
+"""The add-on side of ``--lighting flash``: the Lighting setting's "Camera flash" becomes
+``--lighting flash`` on the backend's command line (an imported map does not go along), and
+the Reconstruct panel says what it fits."""
+
+from __future__ import annotations
+
+import types
+from importlib import import_module
+
+import bpy
+
+from .test_panels import RecordingLayout
+
+
+def test_camera_flash_puts_lighting_flash_on_the_command_line(context, extension, tmp_path):
+    reconstruct = import_module(f"{extension.__name__}.addon.operators.reconstruct")
+    sft = context.scene.sft
+    items = {item.identifier: item.name for item in sft.bl_rna.properties["lighting"].enum_items}
+    assert items["FLASH"] == "Camera flash"
+    sft.lighting = "FLASH"
+    sft.env_path = str(tmp_path / "sky.exr")  # a map imported earlier: the flash replaces it
+    argv = reconstruct.reconstruct_args(tmp_path / "capture", tmp_path / "run", None, "",
+                                        reconstruct.method_args(sft))
+    assert argv[argv.index("--lighting") + 1] == "flash" and "--env" not in argv
+    log = []
+    bpy.types.SFT_PT_reconstruct.draw(types.SimpleNamespace(layout=RecordingLayout(log)), context)
+    labels = [entry[1] for entry in log if entry[0] == "label"]
+    assert any(label.startswith("A flash at each camera, intensity fitted") for label in labels)
+    sft.lighting = "CAPTURED"  # the other choices are unchanged
+    argv = reconstruct.method_args(sft)
+    assert "--lighting" not in argv and argv[argv.index("--env") + 1].endswith("sky.exr")
