@@ -10,12 +10,16 @@ added when both meshes carry vertex colours; PSNR/SSIM are added for ``--renders
 of predicted renders of the truth capture's held-out (or relit, ``--views relit``) views named
 ``<frame name>.exr`` (or ``.png``).
 
-For a run folder the final display mesh is rendered at the truth's held-out and relit views,
-and its material, carried onto the true surface, at the held-out views (``true geometry``:
-the PSNR the same material reaches on perfect geometry, so the difference is the geometry's).
-When the run fitted a specular lobe (its display mesh carries a non-zero ``specular``) and the
-truth carries its material, the held-out views are also scored as the paper's Table 1 splits
-them: a diffuse-only and a specular-only pass of both (:mod:`backend.material.passes`)."""
+For a run folder the final display mesh is rendered at the truth's held-out views under the
+lighting the run fitted (backend.lighting.fitted: the captured lights x its light factor, its
+estimated map, or its flash) and at the relit views under their own map (a flash or estimate
+run's albedo first brought from the scale convention's units to the truth's:
+``relit_albedo_scale``), and its material, carried onto the true surface, at the held-out
+views (``true geometry``: the PSNR the same material reaches on perfect geometry, so the
+difference is the geometry's). When the run fitted a specular lobe (its display mesh carries
+a non-zero ``specular``), the truth carries its material and its held-out views their light,
+the held-out views are also scored as the paper's Table 1 splits them: a diffuse-only and a
+specular-only pass of both, each under its own lighting (:mod:`backend.material.passes`)."""
 
 from __future__ import annotations
 
@@ -31,6 +35,7 @@ from ..capture.images import read_linear_rgb, read_mask, write_image
 from ..capture.load import load_capture
 from ..errors import InputError, require
 from ..geometry.mesh import Mesh, load_mesh
+from ..lighting import fitted
 from ..material.transfer import carry_vertex_material
 from . import geometry as geo
 from .image import albedo_rmse, image_metrics
@@ -146,7 +151,8 @@ def evaluate(prediction: str | Path, truth: str | Path, samples: int = geo.DEFAU
 
 def _run_view_metrics(report: dict, run: Path, capture, gt: Mesh, samples: int, seed: int) -> None:
     """For a run folder: render its final display mesh (which carries the material) at the
-    truth's held-out and relit views into RUN/renders/<set>/, and score them and its albedo."""
+    truth's held-out views under the lighting the run fitted (backend.lighting.fitted) and at
+    its relit views under their own map, into RUN/renders/<set>/, and score them and its albedo."""
     variant.choose()
     from ..render.views import render_views  # render/ needs the Mitsuba variant chosen first
 
@@ -154,26 +160,58 @@ def _run_view_metrics(report: dict, run: Path, capture, gt: Mesh, samples: int, 
     if display.vertex_colors is not None and gt.vertex_colors is not None and "albedo" not in report:
         pa, ga = geo.corresponding_albedo(display, gt, samples, seed)
         report["albedo"] = {"rmse": albedo_rmse(pa, ga), "rmse_scaled": albedo_rmse(pa, ga, fit_scale=True)}
-    try:  # held-out views share the capture's lighting: the fitted light factor applies to them
-        factor = float(json.loads((run / "report.json").read_text())["material"].get("light_factor") or 1.0)
-    except (OSError, ValueError, KeyError, TypeError, AttributeError):
-        factor = 1.0
+    lighting = fitted.from_run(run)
     for name in [s for s in VIEW_SETS if capture.ground_truth.get(s)]:
-        views = load_capture(capture.root / capture.ground_truth[name])
-        if name == "held_out" and views.environment is not None and factor != 1.0:
-            views.environment = views.environment.scaled(factor)
+        truth_views = load_capture(capture.root / capture.ground_truth[name])
+        shown, scale = display, None
+        if name == "held_out":  # the views of the capture the run fitted: under the lighting it fitted
+            views = fitted.light_views(truth_views, lighting)
+        else:  # a light the run never saw: its own lights, the run's albedo in the truth's units
+            views, scale = truth_views, relit_albedo_scale(display, gt, lighting, samples, seed)
+            if scale is not None:  # flash/estimate: albedo (and specular) x a, undoing the convention's scale
+                shown = scaled_material(display, scale)
         out = run / "renders" / name
-        for frame, image in render_views(display, views).items():
+        for frame, image in render_views(shown, views).items():
             write_image(out / f"{frame}.exr", image)
-        report.setdefault("views", {})[name] = _view_metrics(capture, out, name)
-        if name == "held_out" and has_specular_lobe(display) and _material_of(gt) is not None:
-            report["views"][name]["components"] = _component_metrics(display, gt, views)
+        scores = report.setdefault("views", {})[name] = _view_metrics(capture, out, name)
+        scores["lighting"] = lighting.describe() if name == "held_out" else "the views' own map"
+        if lighting.convention and name != "held_out":
+            scores["albedo_scale"] = scale
+        lit_truth = truth_views.environment is not None or truth_views.has_point_lights  # its passes render
+        if name == "held_out" and has_specular_lobe(display) and _material_of(gt) is not None and lit_truth:
+            scores["components"] = _component_metrics(display, gt, views, truth_views)
         if name == "held_out":
             # the fitted material on the true surface: what the geometry alone costs in PSNR
             out = run / "renders" / "true_geometry"
             for frame, image in render_views(carry_vertex_material(display, gt), views).items():
                 write_image(out / f"{frame}.exr", image)
-            report["views"]["true_geometry"] = dict(_view_metrics(capture, out, name), set="true geometry")
+            report["views"]["true_geometry"] = dict(_view_metrics(capture, out, name), set="true geometry",
+                                                    lighting=scores["lighting"])
+
+
+def relit_albedo_scale(display: Mesh, gt: Mesh, lighting, samples: int, seed: int) -> float | None:
+    """The factor a that brings a flash or estimate run's albedo (mean 0.5 by the scale
+    convention, backend.lighting.convention) to the truth's units, so that its relit views
+    compare with a captured run's: mean true over mean predicted albedo at corresponding
+    surface points, one scalar as the convention's one free scale (the colour stays the
+    run's). None for a captured run (its albedo is in the light's units already) or when
+    either mesh has no albedo (the relit views are then scored unscaled)."""
+    if not lighting.convention or display.vertex_colors is None or gt.vertex_colors is None:
+        return None
+    pa, ga = geo.corresponding_albedo(display, gt, samples, seed)
+    mean = float(np.mean(pa))
+    return round(float(np.mean(ga)) / mean, 6) if mean > 1e-6 else None
+
+
+def scaled_material(mesh: Mesh, factor: float) -> Mesh:
+    """A copy of a display mesh with albedo and specular x ``factor`` (kept in [0, 1]), as
+    the scale convention rescales them."""
+    out = mesh.copy()
+    out.vertex_colors = np.clip(mesh.vertex_colors * np.float32(factor), 0, 1).astype(mesh.vertex_colors.dtype)
+    if "specular" in mesh.attributes:
+        spec = mesh.attributes["specular"]
+        out.attributes = dict(mesh.attributes, specular=np.clip(spec * np.float32(factor), 0, 1).astype(spec.dtype))
+    return out
 
 
 SPECULAR_FLOOR = 1e-4  # a display mesh whose specular stays below this has no lobe to score
@@ -193,16 +231,17 @@ def _material_of(mesh: Mesh):
     return VertexField(mesh.faces, mesh.vertex_colors, mesh.attributes["specular"], mesh.attributes["roughness"])
 
 
-def _component_metrics(display: Mesh, gt: Mesh, views, spp: int = 64, max_depth: int = 4) -> dict:
-    """PSNR/SSIM of the diffuse-only and specular-only passes of ``display`` against the same
-    passes of the truth, both rendered now with the same seeds at the ``views`` frames."""
+def _component_metrics(display: Mesh, gt: Mesh, views, truth_views, spp: int = 64, max_depth: int = 4) -> dict:
+    """PSNR/SSIM of the diffuse-only and specular-only passes of ``display`` (under the run's
+    lighting, ``views``) against the same passes of the truth (under the capture's,
+    ``truth_views``), both rendered now with the same seeds at the same frames."""
     from ..material.passes import component_renders  # after variant.choose(), as above
     from ..render.views import display_field
 
     components = ("diffuse", "specular")
-    kw = dict(environment=views.environment, spp=spp, max_depth=max_depth, components=components)
-    predicted = component_renders(display, display_field(display), views.frames, **kw)
-    truth = component_renders(gt, _material_of(gt), views.frames, **kw)
+    kw = dict(spp=spp, max_depth=max_depth, components=components)
+    predicted = component_renders(display, display_field(display), views.frames, views.environment, **kw)
+    truth = component_renders(gt, _material_of(gt), truth_views.frames, truth_views.environment, **kw)
     masks = [read_mask(f.mask) for f in views.frames] if all(f.mask is not None for f in views.frames) else None
     out = {}
     for name in components:
@@ -244,7 +283,8 @@ def table(report: dict) -> str:
         rows.append(("albedo_rmse", f"{report['albedo']['rmse']:.4f}",
                      f"{report['albedo']['rmse_scaled']:.4f} after per-channel scale"))
     for im in ([report["images"]] if "images" in report else []) + list(report.get("views", {}).values()):
-        rows.append((f"psnr {im['set']}", f"{im['psnr']:.2f} dB", f"{len(im['views'])} views, sRGB"))
+        scaled = f"; albedo x {im['albedo_scale']:.3g} (scale convention)" if im.get("albedo_scale") else ""
+        rows.append((f"psnr {im['set']}", f"{im['psnr']:.2f} dB", f"{len(im['views'])} views, sRGB{scaled}"))
         rows.append((f"ssim {im['set']}", f"{im['ssim']:.4f}", ""))
         for name, scores in im.get("components", {}).items():
             rows.append((f"psnr {name}", f"{scores['psnr']:.2f} dB",

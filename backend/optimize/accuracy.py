@@ -8,10 +8,11 @@ views are left out of everything the run fits (initialisation, geometry, materia
 validation). Too few views to hold any out: not tracked, with a warning.
 
 ``AccuracyTracker`` scores up to ``accuracy_views`` of them, at ``accuracy_size`` px and
-``accuracy_spp`` spp with the current mesh and material under the run's lighting, every
-``accuracy_every_s`` seconds of run time and at every level's and stage's end: the mean
-PSNR on sRGB within the masks (backend.metrics.image). The run does not charge that time to
-its budget. Each score is an ``accuracy`` event and a point of ``report.json``
+``accuracy_spp`` spp with the current mesh and material under the run's fitted lighting
+(backend.lighting.fitted, as ``evaluate`` renders them: the views' own lights x the light
+factor, the estimated map, or the flash at each view's camera), every ``accuracy_every_s``
+seconds of run time and at every level's and stage's end: the mean PSNR on sRGB within the
+masks (backend.metrics.image). The run does not charge that time to its budget. Each score is an ``accuracy`` event and a point of ``report.json``
 ``accuracy_time``; ``RUN/accuracy_time.png`` (accuracy_figure) is redrawn after each one.
 ``next_level`` says what the level a time budget cut off was expected to buy."""
 
@@ -28,11 +29,11 @@ import numpy as np
 from ..capture.images import read_rgba
 from ..capture.load import load_capture
 from ..capture.model import Capture
+from ..lighting import fitted
 from ..material.stages import check_views
 from ..metrics.image import psnr
 from ..render.scene import RenderSettings, SceneRenderer
 from . import accuracy_figure
-from .appearance import lit_environment
 from .views import ViewSet
 
 FIGURE = "accuracy_time.png"
@@ -138,25 +139,27 @@ class AccuracyTracker:
         """Long side of the scored images: accuracy_size, at most the run's finest size."""
         return min(self.config.accuracy_size, self.config.max_size)
 
-    def _environment(self, capture: Capture, material):
-        """The run's lighting now, and the map's pixels when they come from a file."""
-        env = lit_environment(capture, material)
+    def _pixels(self, env):
+        """The map's pixels when they come from a file (read once), else None."""
         if env is None or env.pixels is not None:
-            return env, None
+            return None
         if self._map[0] != env.path:
             self._map = (env.path, read_rgba(env.path)[0][..., :3])
-        return env, self._map[1]
+        return self._map[1]
 
-    def score(self, mesh, material, capture: Capture, *, level: int, phase: str, why: str,
+    def score(self, mesh, material, lighting=None, *, level: int, phase: str, why: str,
               validation_loss: float | None, folder: Path) -> dict:
         """Render and score the views now; the point (the ``accuracy`` event's fields).
-        ``capture``: the one the run fits, whose lighting (estimated or captured) it uses."""
+        ``lighting``: the run's fitted lighting (``Appearance.lighting``: an estimated map, a
+        flash, or None for the captured lights), which lights the views (backend.lighting.fitted)."""
         start, now = time.perf_counter(), self.now()  # the time the model had: scoring is not charged
         c, views = self.config, self.views()
-        env, pixels = self._environment(capture, material)
-        renderer = SceneRenderer(mesh, material.field, [v.camera for v in views], [v.lights for v in views], env,
+        lit = fitted.light_views(self.held.capture, fitted.from_live(lighting, material))
+        lights = {f.name: f.lights for f in lit.frames}
+        renderer = SceneRenderer(mesh, material.field, [v.camera for v in views], [lights[v.name] for v in views],
+                                 lit.environment,
                                  RenderSettings(spp=c.accuracy_spp, max_depth=c.max_depth, integrator="path"),
-                                 env_pixels=pixels)
+                                 env_pixels=self._pixels(lit.environment))
         scores = [psnr(renderer.render_numpy(i, seed=SEED + i)[..., :3], v.target, v.mask)
                   for i, v in enumerate(views)]
         seconds = time.perf_counter() - start

@@ -288,7 +288,7 @@ class Reconstruction:
         s = self.state
         start = time.perf_counter()
         with self.budget.uncharged():
-            point = self.accuracy.score(s.mesh if mesh is None else mesh, self.material, self.capture,
+            point = self.accuracy.score(s.mesh if mesh is None else mesh, self.material, self.appearance.lighting,
                                         level=s.level, phase=s.phase, why=why, validation_loss=self.validation,
                                         folder=self.folder.path)
         s.timed("accuracy", start)

@@ -119,12 +119,12 @@ def test_the_score_follows_the_material_and_too_few_views_are_not_held_out(plain
 
     capture = load_capture(plain_capture)
     config = ReconstructConfig(track_accuracy=True, max_size=32)
-    fitted, held = accuracy.split(capture, config)
+    _, held = accuracy.split(capture, config)
     tracker = accuracy.AccuracyTracker(held, config)
     truth = load_mesh(capture.path(capture.ground_truth["mesh"]))
 
     def score(material: str, folder: Path) -> float:
-        return tracker.score(truth, factory.create(material), fitted, level=0, phase="level", why="every",
+        return tracker.score(truth, factory.create(material), level=0, phase="level", why="every",
                              validation_loss=None, folder=folder)["psnr"]
 
     folder = Path(capture.root).parent / "scores"

@@ -1,0 +1,114 @@
+"""The lighting a run fitted, for rendering other views of the same capture (held-out views).
+
+Both scorers of a run's held-out views take it from here: ``evaluate`` on a finished run's
+folder (backend.metrics.evaluate, via :func:`from_run`: report.json and RUN/environment.exr)
+and ``--track-accuracy`` during a run (backend.optimize.accuracy, via :func:`from_live`: the
+run's lighting object and material). :func:`light_views` then lights the views:
+
+- ``captured``: the views' own point lights and map, the map x the staged material's fitted
+  light factor (the factor scales the environment only, as in the fit);
+- ``estimate``: the fitted map (strength 1, rotation 0, Blender's World convention) x the
+  light factor (1 once a stage's end has folded it into the map), and the views' own point
+  lights (the estimate keeps them);
+- ``flash``: one point light at each view's camera centre with the fitted intensity, no map.
+
+Under ``estimate`` and ``flash`` the albedo is in the units of the scale convention
+(backend.lighting.convention: mean albedo 0.5, the light rescaled to match), so only this
+lighting renders the run's material at the capture's brightness; views under another light
+(``relit``) need the albedo brought to the truth's units first (``evaluate`` does so)."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..capture.model import Capture, Environment
+from ..errors import InputError, require
+from . import estimate, flash
+
+MODELS = ("captured", "estimate", "flash")
+
+
+@dataclass(frozen=True)
+class RunLighting:
+    """What a run fitted: its lighting ``model`` and that model's parameters."""
+
+    model: str = "captured"
+    environment: Environment | None = None  # estimate: the fitted map
+    intensity: np.ndarray | None = None  # flash: RGB radiant intensity, W/sr
+    light_factor: float = 1.0  # the staged material's environment factor
+
+    @property
+    def convention(self) -> bool:
+        """Whether the run's albedo is in the convention's units rather than the truth's."""
+        return self.model in ("estimate", "flash")
+
+    def describe(self) -> str:
+        """One line for reports: the lighting the views were rendered under."""
+        if self.model == "flash":
+            value = float(self.intensity[0]) if np.ptp(self.intensity) == 0 else [round(float(x), 6) for x in self.intensity]
+            return f"the run's fitted flash: {value} W/sr at each view's camera"
+        factor = "" if self.light_factor == 1.0 else f" x light factor {self.light_factor:.4g}"
+        if self.model == "estimate":
+            return f"the run's fitted environment map ({estimate.FILENAME}){factor}"
+        return f"the views' own lights{factor}"
+
+
+def from_live(lighting, material) -> RunLighting:
+    """During a run: ``lighting`` is its fitted lighting (``Appearance.lighting``: an
+    EstimatedEnvironment, a Flash, or None for the captured one), ``material`` its material."""
+    factor = float(getattr(material, "light_factor", 1.0) or 1.0)
+    if isinstance(lighting, flash.Flash):
+        return RunLighting("flash", intensity=lighting.rgb_intensity)
+    if isinstance(lighting, estimate.EstimatedEnvironment):
+        return RunLighting("estimate", lighting.environment(), light_factor=factor)
+    return RunLighting("captured", light_factor=factor)
+
+
+def from_run(folder: str | Path) -> RunLighting:
+    """A run folder's: report.json ``lighting`` and ``material.light_factor``, the map from
+    RUN/environment.exr. A folder without a readable report (an interrupted run) is taken as
+    captured lighting at factor 1."""
+    folder = Path(folder)
+    try:
+        report = json.loads((folder / "report.json").read_text())
+    except (OSError, ValueError):
+        return RunLighting()
+    lighting = report.get("lighting") or {}
+    try:
+        factor = float((report.get("material") or {}).get("light_factor") or 1.0)
+    except (TypeError, ValueError, AttributeError):
+        factor = 1.0
+    model = str(lighting.get("model", "captured"))
+    if model == "flash":
+        value = np.asarray(lighting.get("intensity") if lighting.get("intensity") is not None else np.nan, np.float64)
+        require(value.size in (1, 3) and bool(np.all(np.isfinite(value) & (value > 0))), folder / "report.json",
+                "the flash run's report has no positive lighting.intensity", "re-run or resume the reconstruction")
+        return RunLighting("flash", intensity=np.broadcast_to(value.reshape(-1), (3,)).copy())
+    if model.startswith("environment map"):
+        path = folder / str(lighting.get("file") or estimate.FILENAME)
+        require(path.is_file(), path, "the run's estimated environment map is missing",
+                "re-run or resume the reconstruction (it writes the map with every snapshot)")
+        return RunLighting("estimate", Environment(path, 1.0, 0.0, "estimated"), light_factor=factor)
+    if model != "captured":
+        raise InputError(folder / "report.json", f"unknown lighting model '{model}'",
+                         f"a run's report names one of {', '.join(MODELS)}")
+    return RunLighting("captured", light_factor=factor)
+
+
+def light_views(views: Capture, fitted: RunLighting) -> Capture:
+    """``views`` (frames of the capture the run fitted, or its held-out views) under the run's
+    fitted lighting (the module docstring); a new Capture, ``views`` is left as it was."""
+    if fitted.model == "flash":
+        lit = dataclasses.replace(views, frames=[dataclasses.replace(f, lights=[]) for f in views.frames],
+                                  environment=None)
+        flash.place(lit, fitted.intensity)
+        return lit
+    env = fitted.environment if fitted.model == "estimate" else views.environment
+    if env is not None and fitted.light_factor != 1.0:
+        env = env.scaled(fitted.light_factor)
+    return dataclasses.replace(views, environment=env)
