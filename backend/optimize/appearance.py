@@ -273,8 +273,7 @@ class Appearance:
             return lambda decision, candidates: {n: self.costs[n] for n in candidates if n in self.costs}
         c = self.config
         ids = sorted(set(np.linspace(0, len(views) - 1, min(n_views, len(views))).round().astype(int).tolist()))
-        base = RenderSettings(spp=c.spp, max_depth=c.max_depth, integrator=c.integrator, hide_emitters=True,
-                              sppc=c.spp, sppp=c.sppp, sppi=0)
+        base = RenderSettings.for_geometry(c)
         objectives = {}
 
         def gradient(settings: RenderSettings, seed: int):

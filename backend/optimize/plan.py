@@ -376,8 +376,7 @@ def geometry_settings(config, capture=None, geometry: bool = True) -> "RenderSet
     from ..render.scene import RenderSettings
 
     c = config
-    base = RenderSettings(spp=c.spp, max_depth=c.max_depth, integrator=c.integrator, hide_emitters=True,
-                          sppc=c.spp, sppp=c.sppp, sppi=0)
+    base = RenderSettings.for_geometry(c)
     try:
         measured, forced = effects.parse_effects(c.effects)
     except ValueError:

@@ -266,10 +266,7 @@ class Reconstruction:
 
     # -- what the level runs use ---------------------------------------------------------------------
     def settings(self) -> RenderSettings:
-        c = self.config
-        return self.appearance.geometry_settings(
-            RenderSettings(spp=c.spp, max_depth=c.max_depth, integrator=c.integrator, hide_emitters=True,
-                           sppc=c.spp, sppp=c.sppp, sppi=0))
+        return self.appearance.geometry_settings(RenderSettings.for_geometry(self.config))
 
     def latents(self) -> dict[str, np.ndarray]:
         return {n: np.array(z, np.float64) for n, z in self.material.parameters().items()}

@@ -45,6 +45,13 @@ class RenderSettings:
     guiding: str = "none"
     rr_depth: int = 100
 
+    @classmethod
+    def for_geometry(cls, config) -> "RenderSettings":
+        """A run's geometry steps before its effects decision: the ``config``'s samples, depth
+        and integrator (a ReconstructConfig), emitters hidden, no shadow gradients."""
+        return cls(spp=config.spp, max_depth=config.max_depth, integrator=config.integrator, hide_emitters=True,
+                   sppc=config.spp, sppp=config.sppp, sppi=0)
+
     def integrator_dict(self) -> dict:
         if self.integrator not in INTEGRATORS:
             raise ValueError(f"unknown integrator {self.integrator}")
