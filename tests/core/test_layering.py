@@ -1,6 +1,7 @@
 """Backend layering, read from the source (ast): no import cycle between modules, no command
 importing another command nor any other module importing a command, commands kept thin
-(argparse, one library call, an exit code), ``geometry`` free of ``render`` and ``synth``."""
+(argparse, one library call, an exit code), ``geometry`` free of ``render`` and ``synth``, and
+a module over 400 lines saying why at its top."""
 
 from __future__ import annotations
 
@@ -162,3 +163,20 @@ def test_geometry_does_not_import_render_or_synth():
     bad = [(m, t) for m, ts in graph().items() if m.startswith("backend.geometry")
            for t in ts if t.startswith(("backend.render", "backend.synth"))]
     assert not bad, f"geometry importing render/synth: {bad}"
+
+
+MODULE_LINES = 400  # the size a module is read at in one sitting; a longer one says why at its top
+
+
+def test_long_modules_state_why():
+    """Outside ``bench``, a module over ``MODULE_LINES`` states the reason in its docstring
+    ("Longer than 400 lines: ...")."""
+    long = {}
+    for name, path in modules().items():
+        if name.startswith("backend.bench"):
+            continue
+        text = path.read_text(encoding="utf-8")
+        n = text.count("\n")
+        if n > MODULE_LINES and "Longer than 400 lines" not in (ast.get_docstring(ast.parse(text)) or ""):
+            long[name] = n
+    assert not long, f"modules over {MODULE_LINES} lines without the reason in their docstring: {long}"

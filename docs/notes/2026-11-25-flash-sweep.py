@@ -1,6 +1,6 @@
 """Fitted against true flash intensity x mean albedo (docs/notes/2026-11-25-lighting-flash.md).
 
-    python docs/notes/flash_sweep.py OUT_DIR
+    python docs/notes/2026-11-25-flash-sweep.py OUT_DIR
 
 For each case: ``synth --lighting flash`` (8 views, 32 px) of the built-in blob or the
 Stanford bunny (shared data) with a known intensity and constant albedo, the lights removed

@@ -1,6 +1,6 @@
 """Held-out PSNR of a --lighting estimate run on a real capture (docs/notes/2026-11-25-lighting-estimate.md).
 
-    python docs/notes/heldout_psnr_lighting.py FULL_CAPTURE RUN [--every 8] [--size 96]
+    python docs/notes/2026-11-25-heldout-psnr-lighting.py FULL_CAPTURE RUN [--every 8] [--size 96]
 
 Frames i with i % every == 0 were left out of the fit (the run was made on a copy of the capture
 without them). Renders the final mesh and material under RUN/environment.exr at those frames and
