@@ -5,7 +5,10 @@ one ``capture.model.Environment`` documents, rotation 0), log-parameterised (tex
 exp(latent), so it stays positive) with a smoothness prior (squared differences of
 neighbouring latents, longitude wrapping), coarse to fine (``RESOLUTIONS``: one step per
 material stage reached). It starts from what the frames show of the background outside the
-masks (the environment seen directly along the camera rays), else a uniform grey.
+masks (the environment seen directly along the camera rays), else a uniform grey, at the
+level at which the convention's albedo renders the object as bright as the frames show it:
+a background is often a table or a wall, far darker than the lamps that light the object,
+and an albedo bounded by 1 cannot make up the difference while the map climbs to it.
 
 The material stages fit it by Adam jointly with the material latents (``EnvironmentFit``,
 the ``lighting`` argument of ``material.stages.fit``); geometry steps render with the
@@ -60,7 +63,8 @@ def _small(a: np.ndarray, w: int, h: int) -> np.ndarray:
 
 def background_samples(capture: Capture, size: int = INIT_SIZE):
     """World directions and radiance of the background pixels (outside the masks) of frames that
-    show a background, and the mean radiance of the object pixels: (dirs (N, 3), rgb (N, 3), mean)."""
+    show a background, and the mean radiance of the object pixels: (dirs (N, 3), rgb (N, 3),
+    mean (3,), None when no mask covers any pixel)."""
     dirs, rgbs, inside = [], [], []
     for frame in capture.frames:
         cam = frame.camera
@@ -82,21 +86,33 @@ def background_samples(capture: Capture, size: int = INIT_SIZE):
                        -np.ones(len(xs))], -1)
         dirs.append(gl @ cam.camera_to_world[:3, :3].T)
         rgbs.append(image[back])
-    mean = np.mean(inside, 0) if inside else np.full(3, 0.25)
+    mean = np.mean(inside, 0) if inside else None
     if not dirs:
         return np.zeros((0, 3)), np.zeros((0, 3)), mean
     return np.concatenate(dirs), np.concatenate(rgbs), mean
 
 
-def initial_map(capture: Capture, width: int, height: int) -> tuple[np.ndarray, str, float]:
-    """The starting map (height, width, 3), where it came from ("background" or "uniform") and
-    the share of texels the background showed. Uniform grey is the level at which an albedo of
-    ``ALBEDO_CONVENTION`` renders the object's mean brightness; unseen texels take the mean of
-    the seen ones."""
+def sphere_mean(pixels: np.ndarray) -> np.ndarray:
+    """Solid-angle weighted mean per channel of an equirectangular map (height, width, 3)."""
+    h, w = pixels.shape[:2]
+    weight = np.sin(np.pi * (np.arange(h) + 0.5) / h)[:, None, None]
+    return (pixels * weight).sum((0, 1)) / (weight.sum() * w)
+
+
+def initial_map(capture: Capture, width: int, height: int) -> tuple[np.ndarray, str, float, float]:
+    """The starting map (height, width, 3), where it came from ("background" or "uniform"), the
+    share of texels the background showed and the factor the background was scaled by.
+
+    Level: a diffuse object of albedo a under a map of mean radiance L shows about a x L (exactly
+    so under a uniform map, less where it shades itself), so the map's solid-angle mean
+    luminance is set to the object's mean brightness / ``ALBEDO_CONVENTION``; the background
+    keeps its pattern and colour. Without object pixels the background keeps its level (1) and
+    the grey is 0.5. Unseen texels take the mean of the seen ones."""
     dirs, rgb, object_mean = background_samples(capture)
-    grey = np.full(3, max(float(np.mean(object_mean)), 1e-3) / ALBEDO_CONVENTION)
+    level = 0.25 if object_mean is None else max(float(np.mean(object_mean)), 1e-3)
+    grey = np.full(3, level / ALBEDO_CONVENTION)
     if len(dirs) == 0:
-        return np.tile(grey, (height, width, 1)).astype(np.float32), "uniform", 0.0
+        return np.tile(grey, (height, width, 1)).astype(np.float32), "uniform", 0.0, 1.0
     rows, cols = texel_of(dirs, width, height)
     index = rows * width + cols
     count = np.bincount(index, minlength=width * height).astype(np.float64)
@@ -106,7 +122,9 @@ def initial_map(capture: Capture, width: int, height: int) -> tuple[np.ndarray, 
     pixels[seen] = sums[seen] / count[seen, None]
     pixels[~seen] = pixels[seen].mean(0)
     floor = 1e-3 * max(float(pixels.mean()), 1e-6)
-    return np.maximum(pixels, floor).reshape(height, width, 3).astype(np.float32), "background", float(seen.mean())
+    pixels = np.maximum(pixels, floor).reshape(height, width, 3)
+    scale = 1.0 if object_mean is None else float(grey[0] / max(float(sphere_mean(pixels).mean()), 1e-12))
+    return (pixels * scale).astype(np.float32), "background", float(seen.mean()), scale
 
 
 def upsample(latent: np.ndarray, width: int, height: int) -> np.ndarray:
@@ -134,18 +152,20 @@ class EstimatedEnvironment:
     smoothness: float = 0.02  # x mean squared difference of neighbouring latents
     lr: float = 0.05  # Adam step on the latents
 
-    def __init__(self, latent: np.ndarray, path: Path, source: str = "uniform", seen: float = 0.0):
+    def __init__(self, latent: np.ndarray, path: Path, source: str = "uniform", seen: float = 0.0,
+                 background_scale: float = 1.0):
         self.latent = np.asarray(latent, np.float32)
         self.path = Path(path)
         self.source, self.seen = source, seen
+        self.background_scale = background_scale  # the level matching of ``initial_map``
         self.level = 0
         self.scales: list[float] = []  # the convention's rescaling factors, one per stage
 
     @classmethod
     def initial(cls, capture: Capture, path: Path) -> "EstimatedEnvironment":
         width, height = RESOLUTIONS[0]
-        pixels, source, seen = initial_map(capture, width, height)
-        return cls(np.log(pixels), path, source, seen)
+        pixels, source, seen, scale = initial_map(capture, width, height)
+        return cls(np.log(pixels), path, source, seen, scale)
 
     @classmethod
     def load(cls, path: Path, level: int = 0) -> "EstimatedEnvironment":
@@ -170,9 +190,7 @@ class EstimatedEnvironment:
 
     def mean_radiance(self) -> list[float]:
         """Solid-angle weighted mean radiance per channel (the map's average over the sphere)."""
-        h = self.latent.shape[0]
-        weight = np.sin(np.pi * (np.arange(h) + 0.5) / h)[:, None, None]
-        return [float(x) for x in (self.pixels * weight).sum((0, 1)) / (weight.sum() * self.latent.shape[1])]
+        return [float(x) for x in sphere_mean(self.pixels)]
 
     def at_stage(self, stage: str) -> bool:
         """Coarse to fine: the resolution of the material stage about to run (never coarser);
@@ -223,6 +241,7 @@ class EstimatedEnvironment:
         return {"model": "environment map (estimated)", "file": FILENAME, "resolution": [width, height],
                 "parameterisation": "texel = exp(latent), smoothness prior on neighbouring latents",
                 "smoothness": self.smoothness, "initial": self.source, "background_coverage": round(self.seen, 4),
+                "background_scale": round(self.background_scale, 6),
                 "scale_convention": CONVENTION, "albedo_scales": self.scales,
                 "mean_radiance": [round(x, 6) for x in self.mean_radiance()]}
 

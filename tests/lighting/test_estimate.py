@@ -68,14 +68,36 @@ def test_initial_map_is_the_background_seen_through_the_camera_rays(tmp_path):
         write_image(tmp_path / f"{k}.exr", image)
         write_mask(tmp_path / f"{k}.png", np.zeros(image.shape[:2]))
         frames.append(Frame(str(k), tmp_path / f"{k}.exr", cam, mask=tmp_path / f"{k}.png"))
-    pixels, source, seen = estimate.initial_map(Capture(tmp_path, frames), 16, 8)
-    assert source == "background" and 0.2 < seen < 1.0
+    pixels, source, seen, scale = estimate.initial_map(Capture(tmp_path, frames), 16, 8)
+    assert source == "background" and 0.2 < seen < 1.0 and scale == 1.0  # no object seen: the level kept
     dirs, _, _ = estimate.background_samples(Capture(tmp_path, frames))
     rows, cols = estimate.texel_of(dirs, 16, 8)
     hit = np.zeros((8, 16), bool)
     hit[rows, cols] = True
     truth = box_down(sky, 16, 8)
     assert correlation(pixels[hit][None], truth[hit][None]) > 0.8
+
+
+def test_initial_map_level_lets_the_convention_albedo_render_the_object(tmp_path):
+    """A dim background (a dark table) around a bright object: the map keeps the background's
+    pattern and colour at the level where an albedo of 0.5 shows the object's brightness."""
+    cams = layout.orbit_cameras(layout.fibonacci_sphere(6), np.zeros(3), 0.5, 24)
+    frames = []
+    for k, cam in enumerate(cams):
+        image = np.empty((24, 24, 3), np.float32)
+        image[:] = [0.06, 0.03, 0.01] if k % 2 else [0.03, 0.015, 0.005]  # a reddish backdrop, two shades
+        mask = np.zeros((24, 24))
+        mask[6:18, 6:18] = 1
+        image[mask > 0] = [0.7, 0.65, 0.6]
+        write_image(tmp_path / f"{k}.exr", image)
+        write_mask(tmp_path / f"{k}.png", mask)
+        frames.append(Frame(str(k), tmp_path / f"{k}.exr", cam, mask=tmp_path / f"{k}.png"))
+    pixels, source, _, scale = estimate.initial_map(Capture(tmp_path, frames), 16, 8)
+    assert source == "background" and scale > 10
+    level = float(estimate.sphere_mean(pixels).mean())
+    assert level * convention.ALBEDO_CONVENTION == pytest.approx(0.65, rel=0.05)
+    seen = pixels.reshape(-1, 3)
+    assert np.all(seen[:, 0] > seen[:, 1]) and np.all(seen[:, 1] > seen[:, 2])  # its colour kept
 
 
 def test_environment_fit_recovers_the_sky_with_a_known_material():
