@@ -1,0 +1,209 @@
+"""Real captures end to end without an HDR map: import, reconstruct (lighting estimated), held-out PSNR, contact sheets.
+
+For each capture of the shared data (DTU scan 65 with the dataset's masks, the Middlebury
+dino with masks derived from its images, the AliceVision Buddha: four frames, no masks, a
+sphere start), the commands a user runs, as child processes:
+
+1. ``import SRC --out OUT/<name>/capture --max-size IMPORT`` (frames downscaled once);
+2. ``reconstruct CAPTURE --out OUT/<name>/run --time-budget MINUTES --max-size SIZE
+   --track-accuracy --held-out-every K`` with every other default: the capture has no map, so
+   the lighting is estimated (an environment map fitted with the material, its scale fixed by
+   the convention's mean albedo, RUN/environment.exr); ``--track-accuracy`` leaves every
+   K-th frame out of everything the run fits (K per capture below: 8 where the capture has
+   16 frames or more, fewer on the short ones so that two frames are held out);
+3. the contact sheet, ``OUT/<name>/contact_sheet.png``: one row per held-out frame and per
+   ``--fitted`` fitted frames, with the photo, the run's final display mesh rendered at that
+   camera under the lighting the run fitted (backend.lighting.fitted) and the error (x4).
+
+Scores. Each row's PSNR is on sRGB within the frame's mask (the whole frame without one),
+the render at SIZE px and ``--spp``, as ``--track-accuracy`` scores (which renders fewer
+samples; its last point is printed beside it). The held-out figure is the mean over the
+held-out rows. Results: ``OUT/captures.json`` and a printed table."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import subprocess
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from PIL import Image, ImageDraw
+
+from .. import variant
+from ..capture.images import linear_to_srgb, read_linear_rgb
+from ..capture.load import load_capture
+from ..geometry.mesh import load_mesh
+from ..lighting import fitted
+from ..metrics.image import psnr
+from ..optimize.views import ViewSet
+from ._data import SHARED_DATA
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+@dataclass(frozen=True)
+class RealCapture:
+    source: str  # under the shared data folder
+    held_out_every: int
+    about: str
+
+
+CAPTURES = {
+    "dtu": RealCapture("captures/dtu_scan65", 6, "DTU scan 65: a skull under studio lights, 13 frames, the dataset's masks"),
+    "dino": RealCapture("captures/middlebury_dinoSparseRing/dinoSR_par.txt", 8,
+                        "Middlebury dino: 16 frames on a ring, masks derived from the images"),
+    "buddha": RealCapture("captures/alicevision_buddha", 2, "AliceVision Buddha: 4 frames, no masks (sphere start)"),
+}
+
+
+def add_arguments(parser) -> None:
+    parser.add_argument("--out", type=Path, default=Path("bench_captures"), help="folder for the captures and runs")
+    parser.add_argument("--captures", default=",".join(CAPTURES), help="which, comma-separated (default: %(default)s)")
+    parser.add_argument("--minutes", type=float, default=10.0, help="reconstruct's time budget per capture")
+    parser.add_argument("--import-size", type=int, default=400, help="long side of the imported frames, px")
+    parser.add_argument("--max-size", type=int, default=128, help="reconstruct's finest image size, px")
+    parser.add_argument("--spp", type=int, default=256, help="samples per pixel of the contact sheets' renders")
+    parser.add_argument("--fitted", type=int, default=2, help="fitted frames shown beside the held-out ones")
+    parser.add_argument("--reconstruct-args", default="", help="further reconstruct options, quoted")
+    parser.add_argument("--rerun", action="store_true", help="run again when OUT/<name>/run has a result")
+
+
+def _backend(*args) -> None:
+    """``python -m backend ARGS`` as a child process; raises with its last error line."""
+    env = dict(os.environ, PYTHONUNBUFFERED="1")
+    env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(ROOT), env.get("PYTHONPATH")]))
+    proc = subprocess.run([sys.executable, "-m", "backend", *map(str, args)], capture_output=True, text=True, env=env)
+    if proc.returncode != 0:
+        tail = (proc.stderr.strip().splitlines() or ["(no message)"])[-1]
+        raise RuntimeError(f"{args[0]} failed ({proc.returncode}): {tail[-1500:]}")
+
+
+def _srgb8(linear: np.ndarray) -> np.ndarray:
+    return (np.clip(linear_to_srgb(np.clip(linear, 0, None)), 0, 1) * 255 + 0.5).astype(np.uint8)
+
+
+def render_rows(capture_dir: Path, run_dir: Path, size: int, spp: int, fitted_rows: int) -> list[dict]:
+    """The contact sheet's rows: held-out frames (those the run's report names) first, then up
+    to ``fitted_rows`` fitted ones spread over the capture; each with photo, render, PSNR."""
+    variant.choose()
+    from ..render.scene import RenderSettings, SceneRenderer  # render/ needs the variant chosen first
+    from ..render.views import display_field
+
+    capture = load_capture(capture_dir)
+    report = json.loads((run_dir / "report.json").read_text())
+    held = set((report.get("accuracy_time") or {}).get("held_out_views") or [])
+    display = load_mesh(run_dir / json.loads((run_dir / "snapshot.json").read_text())["mesh"])
+    lit = fitted.light_views(capture, fitted.from_run(run_dir))
+    lights = {f.name: f.lights for f in lit.frames}
+    views = ViewSet(capture, size).views
+    others = [v for v in views if v.name not in held]
+    picks = sorted({round(i * len(others) / fitted_rows) for i in range(fitted_rows)}) if fitted_rows > 0 else []
+    chosen = [v for v in views if v.name in held] + [others[i] for i in picks if i < len(others)]
+    renderer = SceneRenderer(display, display_field(display), [v.camera for v in chosen],
+                             [lights[v.name] for v in chosen], lit.environment,
+                             RenderSettings(spp=spp, max_depth=4, integrator="path"))
+    frames = {f.name: f for f in capture.frames}
+    rows = []
+    for i, v in enumerate(chosen):
+        render = renderer.render_numpy(i, seed=i)[..., :3]
+        photo = capture.camera_response.radiance(read_linear_rgb(frames[v.name].image))
+        photo = np.asarray(Image.fromarray(_srgb8(photo)).resize((v.camera.width, v.camera.height), Image.BOX))
+        rows.append({"frame": v.name, "held_out": v.name in held, "psnr": float(psnr(render, v.target, v.mask)),
+                     "photo": photo, "render": render, "target": v.target, "mask": v.mask})
+    return rows
+
+
+def write_sheet(path: Path, rows: list[dict], title: str) -> None:
+    """Rows of photo | render | error x4 (sRGB, within the mask), each labelled with its PSNR."""
+    h, w = rows[0]["render"].shape[:2]
+    label, pad = 14, 4
+    sheet = Image.new("RGB", (3 * w + 4 * pad, label + len(rows) * (h + label + pad) + pad), (32, 32, 32))
+    draw = ImageDraw.Draw(sheet)
+    draw.text((pad, 1), title, fill=(235, 235, 235))
+    for r, row in enumerate(rows):
+        y = label + r * (h + label + pad) + pad
+        kind = "held-out" if row["held_out"] else "fitted"
+        draw.text((pad, y), f"{kind} {row['frame']}: {row['psnr']:.2f} dB  (photo | render | error x4)",
+                  fill=(255, 210, 120) if row["held_out"] else (200, 200, 200))
+        weight = np.ones(row["render"].shape[:2]) if row["mask"] is None else row["mask"]
+        error = np.abs(_srgb8(row["render"]).astype(float) - _srgb8(row["target"]).astype(float)) * weight[..., None]
+        tiles = [row["photo"], _srgb8(row["render"]), np.clip(4 * error, 0, 255).astype(np.uint8)]
+        for c, tile in enumerate(tiles):
+            sheet.paste(Image.fromarray(tile[:h, :w]), (pad + c * (w + pad), y + label))
+    path.parent.mkdir(parents=True, exist_ok=True)
+    sheet.save(path)
+
+
+def one(name: str, spec: RealCapture, args) -> dict:
+    folder = args.out / name
+    capture, run = folder / "capture", folder / "run"
+    start = time.perf_counter()
+    if not (capture / "capture.json").is_file():
+        _backend("import", SHARED_DATA / spec.source, "--out", capture, "--max-size", args.import_size, "--overwrite")
+    imported = time.perf_counter()
+    if args.rerun or not (run / "report.json").is_file():
+        _backend("reconstruct", capture, "--out", run, "--time-budget", args.minutes, "--max-size", args.max_size,
+                 "--track-accuracy", "--held-out-every", spec.held_out_every, *args.reconstruct_args.split())
+    reconstructed = time.perf_counter()
+    report = json.loads((run / "report.json").read_text())
+    rows = render_rows(capture, run, args.max_size, args.spp, args.fitted)
+    held = [r["psnr"] for r in rows if r["held_out"]]
+    fit = [r["psnr"] for r in rows if not r["held_out"]]
+    lighting = report.get("lighting") or {}
+    title = (f"{spec.about}; {args.minutes:g} min, lighting {lighting.get('model', '?')}; "
+             f"held-out {np.mean(held):.2f} dB" if held else f"{spec.about}; nothing held out")
+    write_sheet(folder / "contact_sheet.png", rows, title)
+    points = (report.get("accuracy_time") or {}).get("points") or []
+    return {
+        "capture": name, "about": spec.about, "frames": len(load_capture(capture).frames),
+        "held_out_every": spec.held_out_every, "held_out_frames": [r["frame"] for r in rows if r["held_out"]],
+        "held_out_psnr": float(np.mean(held)) if held else None,
+        "held_out_psnr_each": {r["frame"]: round(r["psnr"], 3) for r in rows if r["held_out"]},
+        "fitted_psnr": float(np.mean(fit)) if fit else None,
+        "tracked_last_psnr": points[-1]["psnr"] if points else None,
+        "lighting": lighting.get("model"), "environment_map": (run / "environment.exr").is_file(),
+        "faces": report["result"]["faces"], "genus": report["result"]["genus"],
+        "minutes": {"import": round((imported - start) / 60, 2), "reconstruct": round((reconstructed - imported) / 60, 2),
+                    "sheet": round((time.perf_counter() - reconstructed) / 60, 2)},
+        "sheet": str(folder / "contact_sheet.png"), "size": args.max_size, "spp": args.spp,
+    }
+
+
+def run(args) -> int:
+    names = [n.strip() for n in args.captures.split(",") if n.strip()]
+    unknown = [n for n in names if n not in CAPTURES]
+    if unknown:
+        print(f"error: unknown capture {unknown[0]!r}: give some of {', '.join(CAPTURES)}", file=sys.stderr)
+        return 2
+    missing = [SHARED_DATA / CAPTURES[n].source for n in names if not (SHARED_DATA / CAPTURES[n].source).exists()]
+    if missing:
+        print(f"error: {missing[0]}: shared data not found; set SFT_SHARED_DATA to the data folder", file=sys.stderr)
+        return 2
+    args.out.mkdir(parents=True, exist_ok=True)
+    results, failed = [], 0
+    for name in names:
+        print(f"[{name}] {CAPTURES[name].about}", flush=True)
+        try:
+            results.append(one(name, CAPTURES[name], args))
+        except RuntimeError as err:
+            failed += 1
+            results.append({"capture": name, "error": str(err)})
+            print(f"[{name}] {err}", flush=True)
+    (args.out / "captures.json").write_text(json.dumps(results, indent=1))
+    print(f"\n{'capture':8} {'frames':>6} {'held out':>9} {'held-out PSNR':>14} {'fitted PSNR':>12} "
+          f"{'tracked':>8} {'lighting':>9} {'faces':>6} {'minutes':>8}")
+    for r in results:
+        if "error" in r:
+            print(f"{r['capture']:8} failed: {r['error']}")
+            continue
+        fmt = lambda x: "-" if x is None or not math.isfinite(x) else f"{x:.2f}"  # noqa: E731
+        print(f"{r['capture']:8} {r['frames']:6d} {len(r['held_out_frames']):9d} {fmt(r['held_out_psnr']):>14} "
+              f"{fmt(r['fitted_psnr']):>12} {fmt(r['tracked_last_psnr']):>8} {str(r['lighting']):>9} "
+              f"{str(r['faces']):>6} {sum(r['minutes'].values()):8.1f}")
+    print(f"contact sheets and captures.json in {args.out}")
+    return 1 if failed else 0

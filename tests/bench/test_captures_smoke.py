@@ -1,0 +1,63 @@
+"""``bench captures`` end to end at toy size on the real DTU scan 65: the real import, a real
+reconstruct with the lighting estimated and every 6th frame held out, and the contact sheet
+rendered from the finished run."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from backend.bench import captures, names
+from tests.helpers import shared_data
+
+
+@pytest.fixture(scope="module")
+def bench(tmp_path_factory):
+    shared_data("captures", "dtu_scan65")
+    out = tmp_path_factory.mktemp("captures")
+    parser = argparse.ArgumentParser()
+    captures.add_arguments(parser)
+    args = parser.parse_args(["--out", str(out), "--captures", "dtu", "--minutes", "0.5", "--import-size", "96",
+                              "--max-size", "32", "--spp", "8", "--fitted", "1",
+                              "--reconstruct-args", "--iterations 6 --coarse-size 32 --initial-faces 500"])
+    return args, captures.run(args)
+
+
+def test_registered_under_its_name():
+    assert "captures" in names()
+
+
+def test_runs_and_scores_held_out_frames(bench):
+    args, rc = bench
+    assert rc == 0
+    (result,) = json.loads((args.out / "captures.json").read_text())
+    assert result["capture"] == "dtu" and result["frames"] == 13
+    # every 6th of 13 frames: two held out, never fitted, each scored
+    assert len(result["held_out_frames"]) == 2 and set(result["held_out_psnr_each"]) == set(result["held_out_frames"])
+    assert all(math.isfinite(p) and 0 < p < 60 for p in result["held_out_psnr_each"].values())
+    assert result["lighting"] == "estimate" and result["environment_map"]
+    report = json.loads((args.out / "dtu" / "run" / "report.json").read_text())
+    assert set(report["accuracy_time"]["held_out_views"]) == set(result["held_out_frames"])
+    assert report["accuracy_time"]["fitted_views"] == 11
+
+
+def test_contact_sheet_has_a_row_per_scored_frame(bench):
+    args, _ = bench
+    sheet = np.asarray(Image.open(args.out / "dtu" / "contact_sheet.png"))
+    (result,) = json.loads((args.out / "captures.json").read_text())
+    rows = len(result["held_out_frames"]) + 1  # and one fitted frame
+    h = 24  # DTU is 4:3: 32 x 24 at --max-size 32
+    assert sheet.shape[0] == 14 + rows * (h + 14 + 4) + 4 and sheet.shape[1] == 3 * 32 + 4 * 4
+    assert sheet[..., :3].std() > 5  # photos and renders, not an empty canvas
+
+
+def test_unknown_capture_is_a_clear_error(tmp_path, capsys):
+    parser = argparse.ArgumentParser()
+    captures.add_arguments(parser)
+    assert captures.run(parser.parse_args(["--out", str(tmp_path), "--captures", "moon"])) == 2
+    assert "unknown capture 'moon'" in capsys.readouterr().err
