@@ -154,8 +154,8 @@ def one(name: str, spec: RealCapture, args) -> dict:
     rows = render_rows(capture, run, args.max_size, args.spp, args.fitted)
     held = [r["psnr"] for r in rows if r["held_out"]]
     fit = [r["psnr"] for r in rows if not r["held_out"]]
-    lighting = report.get("lighting") or {}
-    title = (f"{spec.about}; {args.minutes:g} min, lighting {lighting.get('model', '?')}; "
+    lighting = fitted.from_run(run).model
+    title = (f"{spec.about}; {args.minutes:g} min, lighting {lighting}; "
              f"held-out {np.mean(held):.2f} dB" if held else f"{spec.about}; nothing held out")
     write_sheet(folder / "contact_sheet.png", rows, title)
     points = (report.get("accuracy_time") or {}).get("points") or []
@@ -166,7 +166,7 @@ def one(name: str, spec: RealCapture, args) -> dict:
         "held_out_psnr_each": {r["frame"]: round(r["psnr"], 3) for r in rows if r["held_out"]},
         "fitted_psnr": float(np.mean(fit)) if fit else None,
         "tracked_last_psnr": points[-1]["psnr"] if points else None,
-        "lighting": lighting.get("model"), "environment_map": (run / "environment.exr").is_file(),
+        "lighting": lighting, "environment_map": (run / "environment.exr").is_file(),
         "faces": report["result"]["faces"], "genus": report["result"]["genus"],
         "minutes": {"import": round((imported - start) / 60, 2), "reconstruct": round((reconstructed - imported) / 60, 2),
                     "sheet": round((time.perf_counter() - reconstructed) / 60, 2)},
