@@ -31,7 +31,8 @@ RESOLUTIONS = ((16, 8), (32, 16), (64, 32))  # (width, height): constant, diffus
 STAGE_RESOLUTION = {"constant": 0, "diffuse": 1, "specular": 2, "done": 2}
 CONVENTION = describe("map")
 INIT_SIZE = 64  # long side of the frames read for the initial map
-BACKGROUND_LEVEL = 1e-4  # a frame this dark outside its mask shows no background (premultiplied)
+BACKGROUND_LEVEL = 1e-4  # a background pixel this dark is black (a premultiplied or masked frame)
+BACKGROUND_SHARE = 0.05  # a frame whose background is black but for this share shows none (edge leaks)
 FILENAME = "environment.exr"
 
 
@@ -78,8 +79,9 @@ def background_samples(capture: Capture, size: int = INIT_SIZE):
         if obj.any():
             inside.append(image[obj].mean(0))
         back = mask < 0.02
-        if not back.any() or float(image[back].max()) <= BACKGROUND_LEVEL:
-            continue  # black outside the mask: rendered without a background, or premultiplied
+        if not back.any() or float(np.mean(image[back].max(-1) > BACKGROUND_LEVEL)) < BACKGROUND_SHARE:
+            continue  # black outside the mask (rendered without a background, or premultiplied) but for a few
+            # pixels where the object's anti-aliased edge leaks past a mask drawn a little tight
         ys, xs = np.nonzero(back)
         sx, sy = w / cam.width, h / cam.height
         gl = np.stack([(xs + 0.5 - cam.cx * sx) / (cam.fx * sx), -(ys + 0.5 - cam.cy * sy) / (cam.fy * sy),

@@ -78,6 +78,25 @@ def test_initial_map_is_the_background_seen_through_the_camera_rays(tmp_path):
     assert correlation(pixels[hit][None], truth[hit][None]) > 0.8
 
 
+def test_frames_black_outside_their_masks_but_for_edge_leaks_show_no_background(tmp_path):
+    """A synthetic frame whose object's anti-aliased edge leaks a few pixels past its mask is
+    still a frame without a background: the map starts uniform, not from those pixels."""
+    cams = layout.orbit_cameras(layout.fibonacci_sphere(4), np.zeros(3), 0.5, 24)
+    frames = []
+    for k, cam in enumerate(cams):
+        image = np.zeros((24, 24, 3), np.float32)
+        mask = np.zeros((24, 24))
+        mask[6:18, 6:18] = 1
+        image[mask > 0] = 0.6
+        image[5, 6:18] = 0.01  # the edge leak: 12 of 432 background pixels
+        write_image(tmp_path / f"{k}.exr", image)
+        write_mask(tmp_path / f"{k}.png", mask)
+        frames.append(Frame(str(k), tmp_path / f"{k}.exr", cam, mask=tmp_path / f"{k}.png"))
+    pixels, source, seen, _ = estimate.initial_map(Capture(tmp_path, frames), 16, 8)
+    assert source == "uniform" and seen == 0.0
+    assert np.allclose(pixels, 0.6 / convention.ALBEDO_CONVENTION, rtol=1e-3)
+
+
 def test_initial_map_level_lets_the_convention_albedo_render_the_object(tmp_path):
     """A dim background (a dark table) around a bright object: the map keeps the background's
     pattern and colour at the level where an albedo of 0.5 shows the object's brightness."""
@@ -184,6 +203,10 @@ def test_capture_without_light_estimates_it_by_default(dark_capture, tmp_path):
     assert log[0]["settings"]["lighting"] == "estimate"
     lighting = [e for e in log if e["event"] == "lighting"]
     assert lighting[0]["when"] == "initial" and any(e["when"] == "fitted" for e in lighting)
+    # the map is fitted once on the initial mesh before any geometry step
+    stages = [e["stage"] for e in log if e["event"] == "stage"]
+    assert stages.index("material:constant") < stages.index("geometry")
+    assert json.loads((run / "report.json").read_text())["init"]["light_first"]["stage"] == "constant"
     report = json.loads((run / "report.json").read_text())["lighting"]
     assert report["model"].startswith("environment map") and "mean albedo" in report["scale_convention"]
     fitted = read_linear_rgb(run / "environment.exr")
