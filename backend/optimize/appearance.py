@@ -130,14 +130,6 @@ class Appearance:
     def _masks(self, views):
         return [v.mask for v in views] if all(v.mask is not None for v in views) else None
 
-    def light_first(self, mesh, material, views) -> dict | None:
-        """A fitted lighting (``--lighting estimate``/``flash``) gets one material cycle on the
-        initial mesh before any geometry step: geometry steps under a map that is still its
-        initial guess bend the surface to explain shading the light should explain."""
-        if self.lighting is None or self.driver is None:
-            return None
-        return self.material_cycle(mesh, material, views, level=0)
-
     def material_cycle(self, mesh, material, views, level: int) -> dict | None:
         """One stage of the material schedule on the current geometry."""
         if self.driver is None or self.driver.done:
