@@ -19,6 +19,10 @@ optimiser settles where its biased gradient vanishes, so the shape stays off by 
 share of what is left to fit. The cost is the median time of a step with and without the
 effect (kernels compiled by an untimed step first); ``ratio_e = seconds_e / seconds_base``.
 
+Shadow gradients are charged at most ``shadow_samples.RATIO``: each level cuts their samples
+until a step costs no more (:mod:`backend.optimize.shadow_samples`), and the share is that of
+an unbiased term whatever its sample count.
+
 Selection: the effect is on when z >= ``z_score`` and ``share_e >= value * (ratio_e - 1)``: the bias it removes
 must be worth the share of steps it costs (``value`` = 0.1: a step 1.3x as long must remove 3 %
 of the gradient; a free effect is on as soon as its term stands out of the noise,
@@ -31,7 +35,11 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
+from .shadow_samples import RATIO as SHADOW_RATIO
 from .steps import LaplacianSystem
+
+# the most an effect's step is charged: shadow-gradient samples are cut per level to this ratio
+CAPS = {"shadows": SHADOW_RATIO}
 
 
 @dataclass
@@ -45,14 +53,20 @@ class EffectCost:
     noise: float  # relative seed-to-seed spread of the effect's term (rms |d_k - mean d| / |g|)
     z: float  # significance of |E d|^2 against the spread of its pair products
     pays: bool = False
+    cap: float | None = None  # the ratio the runs hold this effect's steps to (CAPS)
 
     @property
     def ratio(self) -> float:
         return self.seconds / max(self.base_seconds, 1e-9)
 
+    @property
+    def charged(self) -> float:
+        """The step-time ratio the selection charges: measured, at most ``cap``."""
+        return self.ratio if self.cap is None else min(self.ratio, self.cap)
+
     def to_json(self) -> dict:
         out = asdict(self)
-        out.update(ratio=round(self.ratio, 3), seconds=round(self.seconds, 4),
+        out.update(ratio=round(self.ratio, 3), charged=round(self.charged, 3), seconds=round(self.seconds, 4),
                    base_seconds=round(self.base_seconds, 4), share=round(self.share, 5), noise=round(self.noise, 5), z=round(self.z, 2))
         return out
 
@@ -65,7 +79,7 @@ class CostRule:
     seeds: tuple[int, ...] = (101, 202, 303)
 
     def pays(self, cost: EffectCost) -> bool:
-        return cost.z >= self.z_score and cost.share >= max(self.min_share, self.value * (cost.ratio - 1.0))
+        return cost.z >= self.z_score and cost.share >= max(self.min_share, self.value * (cost.charged - 1.0))
 
 
 def _smoothed(system: LaplacianSystem, grad: np.ndarray) -> np.ndarray:
@@ -96,7 +110,7 @@ def measure(gradient, candidates: dict[str, object], base, faces: np.ndarray, n_
     for name, config in candidates.items():
         seconds, grads = timed(config)
         share, noise, z = term_share(grads, base_grads)
-        cost = EffectCost(name, seconds, base_seconds, share, noise, z)
+        cost = EffectCost(name, seconds, base_seconds, share, noise, z, cap=CAPS.get(name))
         cost.pays = rule.pays(cost)
         out[name] = cost
     return out

@@ -25,6 +25,7 @@ from .appearance import lit_environment
 from .objective import seed_for
 from .records import LevelRecord
 from .schedule import Plateau, level_size
+from .shadow_samples import ShadowSamples
 from .steps import Adam, VertexOptimizer, clip_outliers, finite
 from .views import validation_views
 
@@ -96,7 +97,10 @@ class LevelRun:
         views = run.viewset.at(size)
         centres = np.array([v.camera.centre for v in views])
         environment = lit_environment(run.capture, run.material)
-        objective = run.objective_factory(s.mesh, run.material, views, run.settings(), environment, tone=c.tone)
+        settings = run.settings()
+        objective = run.objective_factory(s.mesh, run.material, views, settings, environment, tone=c.tone)
+        # shadow-gradient samples this level affords: timed on its own first steps
+        shadows = ShadowSamples(settings.sppi if hasattr(objective, "set_shadow_samples") else 0)
         self.lr0 = c.step * mean_edge_length(s.mesh)
         self.opt = opt = VertexOptimizer(s.mesh.vertices, s.mesh.faces, run.stiffness.lambda_, self.lr0)
         material_opt = Adam(c.material_lr)
@@ -118,6 +122,7 @@ class LevelRun:
         warmup = self.warmup() if self.material_steps else 0
         s.level_iteration = 0
         self.joint, self.frozen_at = self.material_steps, None
+        self.shadows = None
         try:
             while s.level_iteration < limit:
                 run.folder.check_stop()
@@ -130,8 +135,17 @@ class LevelRun:
                     ids.append(int(order.pop()))
                 geometry = s.level_iteration >= warmup
                 self.before_step()
+                sppi = shadows.next_count() if geometry and shadows.active else None
+                if sppi is not None:
+                    objective.set_shadow_samples(sppi)
+                step_start = time.perf_counter()
                 loss, grad, mgrads = objective.loss_and_grad(vertices, ids, seed_for(c.seed, s.iteration, 0),
                                                              geometry, self.joint)
+                if sppi is not None and shadows.record(sppi, time.perf_counter() - step_start):
+                    objective.set_shadow_samples(shadows.chosen)
+                    self.shadows = shadows.to_json()
+                    run.emit("shadow_samples", stage=self.stage, level=s.level, faces=s.mesh.n_faces, size=size,
+                             **self.shadows)
                 s.iteration += 1
                 s.level_iteration += 1
                 if not (math.isfinite(loss) and finite(*([grad] if geometry else []), *mgrads.values())):
@@ -175,7 +189,8 @@ class LevelRun:
         record = LevelRecord(level=s.level, size=size, faces=s.mesh.n_faces, iterations=s.level_iteration,
                              loss_start=first_loss, loss=plateau.best, step_final=self.step_final(),
                              material_frozen_at=self.frozen_at, seconds=round(time.perf_counter() - start, 3),
-                             elapsed=round(run.budget.elapsed(), 3), polish=not self.material_steps)
+                             elapsed=round(run.budget.elapsed(), 3), polish=not self.material_steps,
+                             shadow_samples=self.shadows)
         if run.truth is not None and c.track_metrics:
             record.metrics = run.metrics(s.mesh)
         s.levels.append(record)

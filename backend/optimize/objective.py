@@ -63,6 +63,13 @@ class Objective:
     def _tone_np(self, img: np.ndarray) -> np.ndarray:
         return img if self.scale is None else np.log1p(np.maximum(img, 0.0) / self.scale)
 
+    def set_shadow_samples(self, sppi: int) -> None:
+        """Indirect-visibility samples per pixel of the next gradients (optimize.shadow_samples);
+        only a projective integrator built with shadow gradients has them."""
+        integrator = self.renderer.scene.integrator()
+        if self.settings.sppi > 0 and hasattr(integrator, "sppi"):
+            integrator.sppi = int(sppi)
+
     def _set_vertices(self, vertices) -> None:
         self.renderer.params[VERTICES] = vertices
         self.renderer.params.update()

@@ -31,8 +31,9 @@ class LevelRecord:
     polish: bool = False
     material: list[dict] | None = None  # the material cycles run after it
     remesh: dict | None = None  # the re-mesh check that followed it
+    shadow_samples: dict | None = None  # the shadow-gradient samples it afforded (optimize.shadow_samples)
 
-    OPTIONAL = ("metrics", "polish", "material", "remesh")
+    OPTIONAL = ("metrics", "polish", "material", "remesh", "shadow_samples")
 
     def add_cycle(self, cycle: dict) -> None:
         self.material = (self.material or []) + [cycle]

@@ -214,8 +214,9 @@ def weigh_costs(decision: EffectsDecision, probe, cfg: EffectsConfig, overrides:
     decision.measured["costs"] = {name: cost.to_json() for name, cost in costs.items()}
     for name, cost in costs.items():
         verdict = "pays" if cost.pays else "does not pay"
+        held = f", held to {cost.charged:.2f}x" if cost.charged < cost.ratio else ""
         why = (f"{verdict}: {100 * cost.share:.1f}% of the gradient (z {cost.z:.1f}) "
-               f"for {cost.ratio:.2f}x the step time")
+               f"for {cost.ratio:.2f}x the step time{held}")
         if name == "shadows":
             decision.shadows = cost.pays
             decision.reasons["shadows"] += f"; {why}"

@@ -1,0 +1,93 @@
+"""Shadow-gradient samples held within a step-cost ratio, measured again at every level.
+
+A projective integrator's indirect-visibility (shadow) term is estimated with ``sppi``
+unguided samples per pixel (``render.effects.SHADOW_SPPI``). What one sample costs grows with
+the image, the mesh and the path depth, so a count that adds a quarter to a 64 px step can
+double a 160 px one. The effects decision says *whether* shadow gradients pay; this controller
+sets *how many* samples each level affords.
+
+At the start of every level or polish round whose settings carry shadow gradients, the level's
+own geometry steps are timed, alternately with the full count ``n`` and with none (real steps:
+a few of the level's hundreds go without the shadow term; the first step of each kind is
+untimed, it compiles kernels). With t(k) the median step time at k samples, and the cost of
+a step taken as linear in k (measured: docs/notes/2026-11-24-hdr-shadow-gradients.md),
+
+    r = t(n) / t(0),        sppi = min(n, max(n_min, floor(n (ratio - 1) / (r - 1))))
+
+so that t(sppi) / t(0) <= ``ratio``. ``ratio`` = 1.9 leaves the margin of the timing's noise
+below the 2x a step with shadow gradients may cost; ``n_min`` keeps the term from vanishing
+(its noise falls as 1/sppi, and the optimiser averages it over steps)."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+
+RATIO = 1.9
+MIN_SPPI = 4
+TIMED = 3  # timed steps of each kind
+
+
+@dataclass
+class ShadowSamples:
+    """The schedule of one level (see the module docstring). ``full``: the settings' sppi."""
+
+    full: int
+    ratio: float = RATIO
+    min_sppi: int = MIN_SPPI
+    timed: int = TIMED
+    chosen: int | None = None
+    seconds: dict = field(default_factory=lambda: {"full": [], "none": []})
+    _step: int = 0
+
+    @property
+    def active(self) -> bool:
+        return self.full > 0
+
+    def next_count(self) -> int:
+        """The sppi of the next geometry step."""
+        if self.chosen is not None or not self.active:
+            return self.chosen if self.chosen is not None else self.full
+        return self.full if self._step % 2 == 0 else 0
+
+    def record(self, sppi: int, seconds: float) -> bool:
+        """Record a geometry step taken at ``sppi`` in ``seconds``; True when this settles the count."""
+        if self.chosen is not None or not self.active:
+            return False
+        step, self._step = self._step, self._step + 1
+        if step >= 2:  # steps 0 and 1 compile the two configurations' kernels
+            self.seconds["full" if sppi else "none"].append(float(seconds))
+        if min(len(v) for v in self.seconds.values()) < self.timed:
+            return False
+        self.chosen = count_for_ratio(self.full, self.measured_ratio, self.ratio, self.min_sppi)
+        return True
+
+    @property
+    def measured_ratio(self) -> float | None:
+        if not self.seconds["full"] or not self.seconds["none"]:
+            return None
+        return float(np.median(self.seconds["full"]) / max(np.median(self.seconds["none"]), 1e-9))
+
+    def expected_ratio(self) -> float | None:
+        r = self.measured_ratio
+        if r is None or self.chosen is None:
+            return None
+        return 1.0 + (r - 1.0) * self.chosen / self.full
+
+    def to_json(self) -> dict:
+        out = {k: v for k, v in asdict(self).items() if not k.startswith("_") and k != "seconds"}
+        out.update(step_seconds=round(float(np.median(self.seconds["full"])), 4) if self.seconds["full"] else None,
+                   base_seconds=round(float(np.median(self.seconds["none"])), 4) if self.seconds["none"] else None,
+                   measured_ratio=None if self.measured_ratio is None else round(self.measured_ratio, 3),
+                   expected_ratio=None if self.expected_ratio() is None else round(self.expected_ratio(), 3))
+        return out
+
+
+def count_for_ratio(full: int, measured: float, ratio: float = RATIO, minimum: int = MIN_SPPI) -> int:
+    """The most samples (at most ``full``) whose step stays within ``ratio`` of one without,
+    given the ratio ``measured`` at ``full`` samples and a cost linear in the count."""
+    if measured <= ratio:
+        return full
+    return int(min(full, max(minimum, math.floor(full * (ratio - 1.0) / (measured - 1.0)))))
