@@ -72,9 +72,6 @@ class ReconstructConfig:
     polish_length: int = 2
     polish_warmup: int = 10  # steps over which the step grows to its full length
     polish_divergence: float = 0.25  # a validation loss this much above the best: back, step halved
-    # the polish rounds' mesh: "level" (the last level's) or "subdivide" (it split 1-to-4, the
-    # material carried exactly, when that stays within max_faces)
-    polish_faces: str = "level"
     # re-meshing between levels: auto = when ray casting finds back faces or geometry outside
     # the masks on more than remesh_threshold of the hits
     remesh: str = "auto"

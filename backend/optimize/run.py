@@ -24,7 +24,6 @@ from ..errors import InputError
 from ..geometry.init import initial_mesh
 from ..geometry.mesh import Mesh, load_mesh, save_mesh
 from ..geometry.simplify import FaceBudget
-from ..geometry.subdivide import midpoint
 from ..geometry.topology import enclosed, inspect
 from ..metrics import geometry_metrics
 from ..render.scene import RenderSettings
@@ -224,12 +223,6 @@ class Reconstruction:
         c, s = self.config, self.state
         if not self.appearance.staged:
             return
-        if (c.polish_faces == "subdivide" and s.polished == 0 and s.levels and s.mesh.n_faces == s.levels[-1].faces
-                and 4 * s.mesh.n_faces <= c.max_faces and not self.budget.out(self.budget.polish_reserve())):
-            old = s.mesh
-            self.emit("stage", stage="refine", level=s.level, faces=old.n_faces)
-            s.mesh, _ = midpoint(old)
-            self.material.on_subdivide(old, s.mesh)
         while s.polished < c.polish_rounds and not self.budget.out(self.budget.polish_reserve()):
             record = PolishRun(self)()
             s.polished += 1
