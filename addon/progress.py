@@ -28,6 +28,7 @@ class RunState:
     message: str = ""  # error or cancel message, or the final summary
     warnings: list[str] = field(default_factory=list)
     effects: str = ""  # the light-transport effects being simulated, from the newest `effects` event
+    shadow_samples: str = ""  # what the level's shadow gradients cost, from the newest `shadow_samples` event
     smoothing: str = ""  # the vertex steps' Large Steps smoothing, from the `stiffness` event
     done: dict = field(default_factory=dict)  # the `done` event
     accuracy: list = field(default_factory=list)  # (seconds, held-out PSNR) of the `accuracy` events
@@ -63,6 +64,10 @@ class RunState:
                 self.loss = event["loss"]
         elif kind == "effects":
             self.effects = effects_summary(event.get("enabled") or {})
+            if not (event.get("enabled") or {}).get("shadows"):
+                self.shadow_samples = ""
+        elif kind == "shadow_samples":
+            self.shadow_samples = shadow_samples_summary(event)
         elif kind == "stiffness":
             reason = str(event.get("reason", ""))
             note = (" (given)" if "given" in reason else
@@ -163,6 +168,13 @@ def effects_summary(enabled: dict) -> str:
         parts.append("shadows")
     parts.append("specular" if enabled.get("specular", True) else "diffuse only")
     return ", ".join(parts)
+
+
+def shadow_samples_summary(event: dict) -> str:
+    """One line from a ``shadow_samples`` event, e.g. 'shadows: 7 samples/px, 1.8x a step'."""
+    ratio = event.get("expected_ratio")
+    cost = f", {float(ratio):.1f}x a step" if ratio is not None else ""
+    return f"shadows: {event.get('chosen')} samples/px{cost}"
 
 
 def cameras_summary(done: dict) -> str:

@@ -29,14 +29,13 @@ convergence by ``FINAL_MATERIAL_CYCLES`` cycles four times as long at the finest
 refinement cycle. ``FIXED_SECONDS`` covers the process start, loading, initialisation and the
 effects decision. A time budget or an iteration cap cuts the prediction where the run would stop.
 
-The plan runs before the effects decision, so the render settings timed are those it most
-likely picks (``geometry_settings``: the base, direct light without shadow gradients, for
-point lights; shadow gradients and one bounce under an environment map), with the effects
-``--effects`` forces: a decision that differs makes the run shorter or longer than planned. The calibration run's step counts come from the sweep's constant-material runs of the
-dragon; what the levels of another object take is not known before it runs. Also left out: a
-re-mesh (Poisson rebuild) between levels. Measuring costs a few seconds (``StepCosts.seconds``:
-2-7 s on the 32-64 px test captures, against a Draft run of 3-5 minutes: about 2 %); the
-preset event measures only the chosen preset's points. docs/results.md ("Predicted time")
+The plan runs before the effects decision, so it times the render settings the decision most
+likely picks (``geometry_settings``), with those ``--effects`` forces; a decision that
+differs makes the run shorter or longer than planned. With shadow gradients the step is also
+timed without them and charged at the samples a level keeps (``optimize.shadow_samples``).
+The calibration's step counts come from constant-material runs of the dragon: what another
+object's levels take is not known before it runs. A re-mesh between levels is left out. The
+preset event measures only the chosen preset's points; docs/results.md ("Predicted time")
 compares predicted and measured times."""
 
 from __future__ import annotations
@@ -49,19 +48,18 @@ import numpy as np
 
 from ..geometry.simplify import FaceBudget
 from .schedule import level_size
+from .shadow_samples import charged_seconds
 from .views import frame_size, validation_views
 
 FIXED_SECONDS = 15.0  # process start, loading, initial mesh, effects decision, snapshots, outputs
-# means over four staged Draft runs of three small synthetic captures (docs/results.md,
-# "Predicted time"): they end on their own convergence, so each run differs (3 to 8 long
-# cycles, 1 to 4 polish rounds of 100 to 240 steps); the main source of the plan's error
+# means over staged Draft runs (docs/results.md, "Predicted time"): these end on their own
+# convergence, so runs differ, and they are the main source of the plan's error
 FINAL_MATERIAL_CYCLES = 4.5  # long cycles (x4 iterations) on the converged geometry before polishing
 POLISH_ROUNDS = 2.5  # each followed by one long refinement cycle
 POLISH_STEPS = 170  # steps per polish round (at most level_iterations x polish_length)
 MATERIAL_ITERATIONS = 40  # FitSettings.iterations
 # a material stage's iteration beyond its render and gradient (mesh-color Adam, smoothness term,
-# highlight weights): 0.097 s per specular iteration on the Draft run at 6000 faces and 32 px,
-# against 0.064 s of the probe's material step there
+# highlight weights), measured on a staged Draft run
 MATERIAL_OVERHEAD_S = 0.03
 MAX_PROBE_FACES = 20480  # larger face counts are extrapolated (a probe step there costs seconds)
 
@@ -288,9 +286,14 @@ def measure(capture, viewset, settings, sizes: list[int], faces: list[int], tone
                     times.append(time.perf_counter() - t0)
                 return float(np.median(times))
 
-            objective.loss_and_grad(mesh.vertices, pair, 7, geometry=True, material=True)  # compiles
-            gradient = timed(lambda s: objective.loss_and_grad(mesh.vertices, pair, s, geometry=True,
-                                                               material=True)) / len(pair)
+            def step(seed):
+                return objective.loss_and_grad(mesh.vertices, pair, seed, geometry=True, material=True)
+            step(7)  # compiles
+            gradient = timed(step) / len(pair)
+            if settings.sppi > 0:  # charged at the samples a level keeps (optimize.shadow_samples)
+                objective.set_shadow_samples(0)
+                step(7)
+                gradient = charged_seconds(gradient, timed(step) / len(pair), settings.sppi)
             forward = timed(lambda s: objective.loss(mesh.vertices, pair, s, max(1, validation_spp // 2))) / len(pair)
             if material_settings is not None and material_settings != settings:
                 del objective
@@ -367,11 +370,9 @@ def make_plan(capture, configs: dict, settings, staged: bool, calibration: dict 
 
 # -- for the reconstruct command -----------------------------------------------------------------------
 def geometry_settings(config, capture=None, geometry: bool = True) -> "RenderSettings":
-    """The geometry steps' render settings the run will most likely use, before its effects
-    decision has run: the config's base (direct light, no shadow gradients) for point-lit
-    captures; for an environment-lit one with measured effects, shadow gradients and one
-    bounce, which the decision turns on for objects that shadow themselves (each then pays
-    for itself: backend/optimize/effect_costs.py); the effects ``--effects`` forces win."""
+    """The render settings the run will most likely use before its effects decision: the
+    config's base for point-lit captures; under an environment map, shadow gradients and one
+    bounce (the decision keeps them for objects that shadow themselves); ``--effects`` wins."""
     from ..render import effects
     from ..render.scene import RenderSettings
 

@@ -91,3 +91,11 @@ def count_for_ratio(full: int, measured: float, ratio: float = RATIO, minimum: i
     if measured <= ratio:
         return full
     return int(min(full, max(minimum, math.floor(full * (ratio - 1.0) / (measured - 1.0)))))
+
+
+def charged_seconds(full_seconds: float, base_seconds: float, full: int, ratio: float = RATIO,
+                    minimum: int = MIN_SPPI) -> float:
+    """A step's expected time once a level keeps its samples: ``full_seconds`` timed at ``full``
+    samples, ``base_seconds`` without; the cost linear in the count, as above."""
+    kept = count_for_ratio(full, full_seconds / max(base_seconds, 1e-9), ratio, minimum)
+    return base_seconds + (full_seconds - base_seconds) * kept / full

@@ -264,6 +264,11 @@ def test_effects_event_is_summarised_for_the_panel():
     assert state.effects == "direct light, specular"
     state.update({"event": "effects", "enabled": {"max_depth": 4, "shadows": True, "specular": False}})
     assert state.effects == "3 bounces, shadows, diffuse only"
+    state.update({"event": "shadow_samples", "level": 1, "full": 12, "chosen": 7, "measured_ratio": 2.38,
+                  "expected_ratio": 1.804})
+    assert state.shadow_samples == "shadows: 7 samples/px, 1.8x a step"
+    state.update({"event": "effects", "enabled": {"max_depth": 3, "shadows": False, "specular": True}})
+    assert state.shadow_samples == ""  # shadow gradients off: no cost line
     state.update({"event": "stiffness", "lambda": 20.0, "clip": 99.5, "chroma_spread": 0.15,
                   "reason": "a constant material cannot explain the frames' colour variation"})
     assert state.smoothing == "λ 20 (textured, one constant material)"

@@ -73,3 +73,25 @@ def test_the_preset_event_carries_the_captures_prediction(capture, tmp_path):
     assert preset["expected_minutes"] is not None  # the calibration's figure stays (point-lit capture)
     assert sum(lv["steps"] for lv in preset["plan"]["levels"]) == 6  # the iteration cap
     assert preset["plan"]["costs"]["seconds"] < 30 and preset["plan"]["costs"]["points"]
+
+
+def test_shadow_gradients_are_charged_at_the_samples_a_level_keeps(tmp_path):
+    """Under an environment map with shadow gradients the plan times the geometry step with and
+    without them and charges the count a level keeps (the arithmetic: test_shadow_samples.py)."""
+    from backend import variant
+
+    variant.choose()
+    from backend.capture.load import load_capture
+    from backend.optimize.views import ViewSet
+    from backend.render.scene import RenderSettings
+
+    out = tmp_path / "capture"
+    run_cli("synth", "--out", out, "--views", 4, "--resolution", 32, "--spp", 16, "--held-out", 0,
+            "--lighting", "env", "--env", "sky", check=True)
+    capture = load_capture(out)
+    viewset = ViewSet(capture, 32)
+    shadows = RenderSettings(spp=4, max_depth=3, integrator="prb_projective", sppc=4, sppp=4, sppi=12)
+    costs = plan.measure(capture, viewset, shadows, [32], [320], repeats=3)
+    (point,) = costs.points
+    assert point.gradient > 0 and point.forward > 0 and point.material > 0
+    assert costs.coefficients["gradient"][0] + costs.coefficients["gradient"][1] * point.pixels > 0

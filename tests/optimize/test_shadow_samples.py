@@ -5,7 +5,7 @@ import json
 
 import pytest
 
-from backend.optimize.shadow_samples import RATIO, ShadowSamples, count_for_ratio
+from backend.optimize.shadow_samples import RATIO, ShadowSamples, charged_seconds, count_for_ratio
 from tests.helpers import run_cli
 
 
@@ -15,6 +15,14 @@ def test_count_keeps_a_linear_cost_within_the_ratio(measured, expected):
     assert n == expected
     if n > 4:  # above the floor the linear model puts the step at or under the ratio
         assert 1 + (measured - 1) * n / 12 <= 1.9 + 1e-9
+
+
+def test_a_plan_charges_the_step_at_the_count_kept():
+    assert charged_seconds(1.5, 1.0, 12) == 1.5  # within the ratio: all 12 samples, as timed
+    # 3x at 12 samples: 5 kept, 1 + 2 * 5 / 12 s
+    assert charged_seconds(3.0, 1.0, 12) == pytest.approx(1 + 2 * 5 / 12)
+    assert charged_seconds(3.0, 1.0, 12) <= RATIO * 1.0
+    assert charged_seconds(40.0, 1.0, 12) == pytest.approx(1 + 39 * 4 / 12)  # the floor of 4 samples
 
 
 def test_schedule_alternates_untimed_compiles_then_settles():
