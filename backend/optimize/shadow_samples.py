@@ -48,9 +48,9 @@ class ShadowSamples:
 
     def next_count(self) -> int:
         """The sppi of the next geometry step."""
-        if self.chosen is not None or not self.active:
-            return self.chosen if self.chosen is not None else self.full
-        return self.full if self._step % 2 == 0 else 0
+        if self.chosen is not None:
+            return self.chosen
+        return self.full if not self.active or self._step % 2 == 0 else 0
 
     def record(self, sppi: int, seconds: float) -> bool:
         """Record a geometry step taken at ``sppi`` in ``seconds``; True when this settles the count."""
@@ -78,10 +78,11 @@ class ShadowSamples:
 
     def to_json(self) -> dict:
         out = {k: v for k, v in asdict(self).items() if not k.startswith("_") and k != "seconds"}
-        out.update(step_seconds=round(float(np.median(self.seconds["full"])), 4) if self.seconds["full"] else None,
-                   base_seconds=round(float(np.median(self.seconds["none"])), 4) if self.seconds["none"] else None,
-                   measured_ratio=None if self.measured_ratio is None else round(self.measured_ratio, 3),
-                   expected_ratio=None if self.expected_ratio() is None else round(self.expected_ratio(), 3))
+        medians = {k: round(float(np.median(v)), 4) if v else None for k, v in self.seconds.items()}
+        measured, expected = self.measured_ratio, self.expected_ratio()
+        out.update(step_seconds=medians["full"], base_seconds=medians["none"],
+                   measured_ratio=None if measured is None else round(measured, 3),
+                   expected_ratio=None if expected is None else round(expected, 3))
         return out
 
 
