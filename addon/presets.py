@@ -14,7 +14,7 @@ from . import interpreter
 PRESETS = (
     ("draft", "Draft", "Coarse mesh and few iterations: a quick look"),
     ("balanced", "Balanced", "The default trade-off between time and accuracy"),
-    ("final", "Final", "Fine mesh and full material: best accuracy, slowest"),
+    ("final", "Final", "More and longer refinement levels: the most accurate, slowest"),
 )
 
 
