@@ -8,7 +8,7 @@ import math
 from pathlib import Path
 
 from .. import fsio
-from . import _pareto
+from . import _labels, _pareto
 from ._machine import machine_line
 
 PRESET_NAMES = ("draft", "balanced", "final")
@@ -41,6 +41,7 @@ def plot(rows: list[dict], scene: str, path: Path) -> None:
     import matplotlib.ticker
 
     fig, axes = plt.subplots(1, len(PANELS), figsize=(5.2 * len(PANELS), 4.3))
+    labelled = []
     for ax, (tkey, key, xlabel, ylabel) in zip(axes, PANELS):
         pts = [r for r in rows if r.get(key) is not None and r.get(tkey) is not None]
         if not pts:
@@ -52,8 +53,6 @@ def plot(rows: list[dict], scene: str, path: Path) -> None:
             preset = r["name"] in PRESET_NAMES
             ax.scatter(r[tkey], r[key], s=60 if preset else 28, marker="D" if preset else "o",
                        color="tab:red" if i in on else "tab:gray", zorder=3, edgecolors="k", linewidths=0.4)
-            ax.annotate(r["name"].replace("draft:", ""), (r[tkey], r[key]), fontsize=7,
-                        xytext=(4, 3), textcoords="offset points", color="k" if i in on else "0.45")
         xs = [pts[i][tkey] for i in idx]
         ys = [pts[i][key] for i in idx]
         ax.step(xs + [max(r[tkey] for r in pts) * 1.15], ys + ys[-1:], where="post", color="tab:red",
@@ -66,9 +65,16 @@ def plot(rows: list[dict], scene: str, path: Path) -> None:
         ax.set_xlabel(xlabel)
         ax.set_ylabel(ylabel)
         ax.grid(True, which="both", alpha=0.3)
-        ax.legend(loc="best", fontsize=8)
+        ax.legend(loc="lower right", fontsize=8)
+        labelled.append((ax, pts, on, tkey, key))
     fig.suptitle(f"{scene}: accuracy against time ({len(rows)} runs; diamonds: presets)")
     fig.tight_layout()
+    for ax, pts, on, tkey, key in labelled:
+        # labels last, on the final layout: the front and the presets first, so they get the near places
+        order = sorted(range(len(pts)), key=lambda i: (i not in on, pts[i]["name"] not in PRESET_NAMES))
+        _labels.place(ax, [pts[i][tkey] for i in order], [pts[i][key] for i in order],
+                      [pts[i]["name"].replace("draft:", "") for i in order],
+                      ["k" if i in on else "0.45" for i in order])
     with fsio.atomic_path(path) as tmp:
         fig.savefig(tmp, dpi=100, format="png")
     plt.close(fig)

@@ -116,3 +116,36 @@ def test_settings_turn_into_reconstruct_options_and_knobs():
     from backend.optimize.config import ReconstructConfig
     assert set(overrides(draft, dict(draft, max_size=128, bounces=2, time_budget_min=2.0))) <= set(
         ReconstructConfig.__dataclass_fields__)
+
+
+def test_plot_labels_do_not_overlap_when_runs_cluster(tmp_path):
+    """Twelve runs within a few percent of each other (as knobs that change little land): every
+    label gets its own place, inside the axes; the report's plot is written with them."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from backend.bench import _labels, _report
+
+    rng = np.random.default_rng(0)
+    xs = (60 + rng.normal(0, 4, 12)).tolist()
+    ys = (92 + rng.normal(0, 0.4, 12)).tolist()
+    names = [f"knob_{i}={v}" for i, v in enumerate(rng.integers(1, 999, 12))]
+    fig, ax = plt.subplots(figsize=(5.2, 4.3))
+    ax.scatter(xs, ys)
+    ax.set_xlim(20, 200)
+    ax.set_ylim(84, 98)
+    notes = _labels.place(ax, xs, ys, names)
+    renderer = fig.canvas.get_renderer()
+    boxes = [n.get_window_extent(renderer) for n in notes]
+    frame = ax.get_window_extent(renderer)
+    assert len(boxes) == 12
+    for i, a in enumerate(boxes):
+        assert frame.x0 <= a.x0 and a.x1 <= frame.x1 and frame.y0 <= a.y0 and a.y1 <= frame.y1
+        for b in boxes[i + 1:]:
+            assert not a.overlaps(b), (a, b)
+    plt.close(fig)
+    rows = [{"name": n, "seconds": x, "cpu_seconds": 2 * x, "f1": y, "relit_psnr": y / 4} for n, x, y in zip(names, xs, ys)]
+    _report.plot(rows, "cluster", tmp_path / "p.png")
+    assert (tmp_path / "p.png").stat().st_size > 10_000
