@@ -13,8 +13,8 @@ from . import interpreter
 
 PRESETS = (
     ("draft", "Draft", "Coarse mesh and few iterations: a quick look"),
-    ("balanced", "Balanced", "The default trade-off between time and accuracy"),
-    ("final", "Final", "More and longer refinement levels: the most accurate, slowest"),
+    ("balanced", "Balanced", "Six refinement levels: the default trade-off between time and accuracy"),
+    ("final", "Final", "Refinement levels until the surface stops improving: the most accurate, slowest"),
 )
 
 

@@ -1,19 +1,26 @@
-"""Calibrate the quality presets on this machine: time and accuracy of Draft/Balanced/Final on the dragon.
+"""Calibrate the quality presets on this machine: time and accuracy of Draft/Balanced/Final
+on one calibration scene per kind of lighting.
 
-``python -m backend bench calibrate [--presets draft,balanced,final] [--out FILE]`` runs
-each preset on the dragon benchmark scene (synthesised once; see ``bench sweep``) exactly as
-``reconstruct --preset NAME`` would, and writes the calibration file (default
+``python -m backend bench calibrate [--presets draft,balanced,final] [--scenes dragon,blob_env]
+[--out FILE]`` runs each preset on each scene (synthesised once; see ``bench sweep``) exactly
+as ``reconstruct --preset NAME`` would, and writes the calibration file (default
 ``backend/presets.json``, which the Blender panel reads)::
 
     {"machine": "CPU, N cores, variant", "machine_details": {...}, "measured": ..., "scene": ...,
-     "presets": {"draft": {"expected_minutes": ..., "expected_f1": ..., ...}, ...}}
+     "code": COMMIT, "presets": {"draft": {"expected_minutes": ..., "expected_f1": ..., ...}, ...},
+     "kinds": {"point": {"scene": ..., "presets": {...}}, "environment": {...}}}
 
-``expected_f1`` is F1@0.01 as a fraction (0.9 = 90 %). ``--from-results FILE`` writes the
-file from a sweep's ``results.jsonl`` instead of running anything; then each preset also
-gets ``recommended_overrides`` (ReconstructConfig fields, as in ``optimize/presets.py``): the settings of
-the most accurate swept run that fits the preset's time target, when it beats the preset by
-more than ``--margin`` F1 points.
-``backend.optimize.presets.preset_for_budget`` picks a preset for a time budget from the file."""
+The top level is the dragon's (point lights: what time budgets and the panel use); ``kinds``
+holds every kind's, ``environment`` from the HDR-lit blob, which a capture lit by an
+environment map is promised (optimize/presets.py, ``calibrated``). ``expected_f1`` is F1@0.01
+as a fraction (0.9 = 90 %). ``--from-results FILE`` writes the file from a sweep's
+``results.jsonl`` instead of running anything; then each preset also gets
+``recommended_overrides`` (ReconstructConfig fields, as in ``optimize/presets.py``): the
+settings of the most accurate swept run that fits the preset's time target, when it beats the
+preset by more than ``--margin`` F1 points. Each entry records the preset's ``overrides`` as
+they were measured and ``code`` the commit; the ``done`` event lists presets another one
+dominates (as fast or faster and as accurate or more), which a shipped calibration must not
+have. ``backend.optimize.presets.preset_for_budget`` picks a preset for a time budget from the file."""
 
 from __future__ import annotations
 
@@ -23,13 +30,16 @@ from pathlib import Path
 from .. import fsio, variant
 from ..errors import InputError, require
 from ..events import Emitter
-from ..optimize.presets import CALIBRATION_FILE
+from ..optimize.presets import CALIBRATION_FILE, PRESETS
 from ._machine import code_version, machine, machine_line
 from ._sweep_scenes import SCENES, ensure
 from .sweep import GRIDS, append_result, load_results, measure
 
 REPO = Path(__file__).resolve().parents[2]
 SCENE = "dragon"
+# the calibration scene of each kind of lighting (optimize/presets.py: lighting_kind): the
+# dragon's figures are the file's top-level ones, which time budgets and the panel use
+KINDS = {"point": "dragon", "environment": "blob_env"}
 # time (minutes) and F1@0.01 (percent) each preset is meant to reach on the dragon; None: no limit
 TARGETS = {"draft": (3.0, 80.0), "balanced": (10.0, 90.0), "final": (None, None)}
 
@@ -89,8 +99,33 @@ def recommend(name: str, preset_row: dict, rows: list[dict], margin: float) -> d
             "recommended_expected_f1": round(best["f1"] / 100, 4)}
 
 
-def calibration(rows: list[dict], machine: dict, scene_description: str, margin: float = 1.0) -> dict:
-    """The calibration document from sweep rows of the dragon scene (presets named as in PRESETS)."""
+def dominated(presets: dict) -> list[tuple[str, str]]:
+    """(preset, by) for every calibrated preset that another is at least as fast and at least as
+    accurate as; a shipped calibration has none (tests/bench/test_presets_calibration.py)."""
+    out = []
+    for name, p in presets.items():
+        for other, q in presets.items():
+            if other != name and q["expected_minutes"] <= p["expected_minutes"] and q["expected_f1"] >= p["expected_f1"]:
+                out.append((name, other))
+                break
+    return out
+
+
+def calibration(rows: list[dict], machine: dict, margin: float = 1.0) -> dict:
+    """The calibration document from sweep rows of the calibration scenes (presets named as in
+    PRESETS): the dragon's entries at the top level, every kind's under ``kinds``."""
+    kinds = {}
+    for kind, scene in KINDS.items():
+        doc = scene_calibration([r for r in rows if r.get("scene", SCENE) == scene], machine, scene, margin)
+        if doc["presets"]:
+            kinds[kind] = doc
+    top = kinds.get("point") or scene_calibration([], machine, SCENE, margin)
+    return {**top, "kinds": {k: {key: d[key] for key in ("scene", "measured", "code", "presets")}
+                             for k, d in kinds.items()}}
+
+
+def scene_calibration(rows: list[dict], machine: dict, scene: str, margin: float = 1.0) -> dict:
+    """The calibration entries of one scene's rows."""
     good = [r for r in rows if r.get("rc") == 0 and r.get("f1") is not None]
     presets = {}
     for name in TARGETS:
@@ -98,15 +133,17 @@ def calibration(rows: list[dict], machine: dict, scene_description: str, margin:
         if row is None:
             continue
         presets[name] = entry(row)
-        target = _target(name, row)
+        # the preset as it shipped when measured: a test compares it with optimize/presets.py
+        presets[name]["overrides"] = PRESETS[name]
+        target = _target(name, row) if scene == SCENE else None  # the targets are the dragon's
         if target:
             presets[name]["target"] = target
         presets[name].update(recommend(name, row, good, margin))
     dates = sorted(r["measured"] for r in good if r.get("measured"))
     return {"machine": machine_line(machine), "machine_details": machine,
             "measured": dates[-1] if dates else time.strftime("%Y-%m-%dT%H:%M:%S"),
-            "scene": f"{SCENE}: {scene_description}",
-            "code": ", ".join(sorted({r.get("code", "unknown") for r in good})),
+            "scene": f"{scene}: {SCENES[scene].description}",
+            "code": ", ".join(sorted({r.get("code", "unknown") for r in good if r["name"] in presets})),
             "metric": "expected_f1 is F1@0.01 as a fraction; expected_minutes is the wall clock of the whole "
                       "reconstruct process (median of the runs); load_average is the 1-minute load before/after",
             "presets": presets}
@@ -121,6 +158,9 @@ def add_arguments(parser) -> None:
                         help="write the file from a sweep's results.jsonl (dragon rows) instead of running")
     parser.add_argument("--margin", type=float, default=1.0,
                         help="F1 points a swept setting must gain to be recommended (default: %(default)s)")
+    parser.add_argument("--scenes", default=",".join(KINDS.values()),
+                        help="calibration scenes to run, one per kind of lighting (default: %(default)s); "
+                             "the work folder's earlier rows stand in for the others")
     parser.add_argument("--repeats", type=int, default=1, help="runs per preset (the median time is kept)")
     parser.add_argument("--variant", help="Mitsuba variant (default: automatic)")
 
@@ -128,33 +168,42 @@ def add_arguments(parser) -> None:
 def run(args) -> int:
     emit = Emitter()
     names = [n.strip() for n in args.presets.split(",") if n.strip()]
+    scenes = [n.strip() for n in args.scenes.split(",") if n.strip()]
+    wrong = [n for n in scenes if n not in KINDS.values()]
+    if wrong:
+        raise InputError(None, f"{', '.join(wrong)} is not a calibration scene", f"choose from {', '.join(KINDS.values())}")
     unknown = [n for n in names if n not in TARGETS]
     if unknown:
         raise InputError(None, f"unknown preset {', '.join(unknown)}", f"choose from {', '.join(TARGETS)}")
     if args.from_results:
         require(args.from_results.is_file(), args.from_results, "results file not found",
                 "run python -m backend bench sweep first, or leave out --from-results")
-        rows = [r for r in load_results(args.from_results) if r["scene"] == SCENE]
-        require(any(r["name"] in names for r in rows), args.from_results, f"no {SCENE} runs of the presets",
-                f"run python -m backend bench sweep --grid presets --scenes {SCENE}")
+        rows = [r for r in load_results(args.from_results) if r["scene"] in scenes]
+        require(any(r["name"] in names and r["scene"] == SCENE for r in rows), args.from_results,
+                f"no {SCENE} runs of the presets", f"run python -m backend bench sweep --grid presets --scenes {SCENE}")
         info = next((r["machine"] for r in rows if r.get("machine")), machine())
         rows = [r for r in rows if r["name"] in names or r["name"] not in TARGETS]
     else:
         info = machine(variant.choose(args.variant, emit))
-        capture = ensure(SCENE, args.work / "scenes", emit)
         settings = {s.name: s for s in GRIDS["presets"]}
-        rows = []
-        for i, name in enumerate(names):
-            emit("stage", stage=f"calibrate:{name}", level=i, faces=0)
-            row = measure(SCENE, capture, settings[name], args.work, args.repeats, float("inf"), args.variant)
+        # earlier rows of the work folder count for what this call does not run (one scene at a time)
+        rows = [r for r in load_results(args.work / "results.jsonl") if r["scene"] in scenes]
+        todo = [(scene, name) for scene in scenes for name in names]
+        for i, (scene, name) in enumerate(todo):
+            capture = ensure(scene, args.work / "scenes", emit)
+            emit("stage", stage=f"calibrate:{scene}:{name}", level=i, faces=0)
+            row = measure(scene, capture, settings[name], args.work, args.repeats, float("inf"), args.variant)
             row["machine"], row["code"] = info, code_version()
             append_result(args.work / "results.jsonl", row)
-            rows.append(row)
-            emit("progress", stage="calibrate", iteration=i + 1, iterations=len(names), fraction=(i + 1) / len(names),
-                 preset=name, seconds=row["seconds"], f1=row.get("f1"), rc=row["rc"])
-    doc = calibration(rows, info, SCENES[SCENE].description, args.margin)
+            rows = [r for r in rows if (r["scene"], r["name"]) != (scene, name)] + [row]
+            emit("progress", stage="calibrate", iteration=i + 1, iterations=len(todo), fraction=(i + 1) / len(todo),
+                 scene=scene, preset=name, seconds=row["seconds"], f1=row.get("f1"), rc=row["rc"])
+    doc = calibration(rows, info, args.margin)
     require(bool(doc["presets"]), None, "no preset run finished", f"see the logs under {args.work / 'logs'}")
     fsio.write_json(args.out, doc)
-    emit("done", calibration=str(args.out), presets={n: {k: p[k] for k in ("expected_minutes", "expected_f1")}
-                                                     for n, p in doc["presets"].items()})
+    emit("done", calibration=str(args.out),
+         kinds={kind: {n: {k: p[k] for k in ("expected_minutes", "expected_f1")} for n, p in d["presets"].items()}
+                for kind, d in doc["kinds"].items()},
+         dominated=[{"kind": kind, "preset": n, "by": by} for kind, d in doc["kinds"].items()
+                    for n, by in dominated(d["presets"])])
     return 0

@@ -303,6 +303,10 @@ class Appearance:
     def geometry_settings(self, base: RenderSettings) -> RenderSettings:
         return base if self.decision is None else self.decision.settings(base, geometry=True)
 
+    def material_settings(self, base: RenderSettings) -> RenderSettings:
+        """What a material step renders with (the decision's effects, every bounce it keeps)."""
+        return (effects.EffectsDecision() if self.decision is None else self.decision).settings(base, geometry=False)
+
     def _renderer(self, mesh, material, views, geometry: bool, settings: RenderSettings | None = None):
         base = settings or RenderSettings(spp=self.config.spp, max_depth=self.config.max_depth, integrator="prb")
         if self.decision is not None:

@@ -25,8 +25,8 @@ from ..events import Emitter
 from ..lighting.setup import resolve_lighting
 from ..video.inputs import check_inputs, write_capture
 from .config import STAGED_FACE_GROWTH, ReconstructConfig
-from .plan import capture_plan
-from .presets import DEFAULT, PRESETS, calibrated, load_calibration, preset_for_budget
+from .plan import capture_plan, make_plan
+from .presets import DEFAULT, PRESETS, calibrated, calibration_scene, lighting_kind, preset_for_budget
 from .run_folder import RunFolder
 
 OVERRIDES = ("init", "material", "effects", "initial_faces", "iterations", "seed", "max_size", "coarse_size", "views_per_step",
@@ -171,11 +171,11 @@ def run(args) -> int:
         with reported(emit):
             emit("start", run=str(folder.path), capture=str(args.capture), settings=dataclasses.asdict(config))
             emit("variant", variant=chosen, llvm=os.environ.get("DRJIT_LIBLLVM_PATH"))
-            _preset_event(args, capture, emit, config)
+            planner = _preset_event(args, emit, config, capture)
             if video is not None:
                 capture = video_capture(video, folder, args.resume, emit)
                 Appearance.check(capture, config)
-            return reconstruct(capture, folder, config, emit, resume=args.resume).exit_code
+            return reconstruct(capture, folder, config, emit, resume=args.resume, planner=planner).exit_code
     finally:
         emit.close()
 
@@ -189,7 +189,7 @@ def _print_plan(args, capture) -> int:
     """--plan: each preset's predicted time on this capture (optimize/plan.py), printed; no run."""
     require(capture is not None, args.capture, "--plan needs a capture folder",
             "write the capture first (capture-from-video), then plan on it")
-    plan = capture_plan(capture, _preset_configs(args, PRESETS), calibrated())
+    plan = capture_plan(capture, _preset_configs(args, PRESETS), calibrated(kind=lighting_kind(capture)))
     print(plan.table())
     print(f"{plan.line()} on this capture (step costs measured in {plan.costs.seconds:.1f} s)", flush=True)
     # the same as one event (docs/protocol.md) for the add-on's Plan button
@@ -197,22 +197,34 @@ def _print_plan(args, capture) -> int:
     return 0
 
 
-def _preset_event(args, capture, emit, config) -> None:
+def _preset_event(args, emit, config, capture):
+    """The ``preset`` event: the preset chosen, its calibrated figures and this capture's
+    predicted time. A new run announces it once its effects are decided (the planner it
+    returns, which ``reconstruct`` calls), so that the plan times the steps with the effects
+    the run will use; a resumed run announces it at once, without a plan."""
     preset = choose_preset(args)
-    expected = calibrated().get(preset, {})
-    # expected_*: the calibration scene's figures (point-lit: no promise for an HDR-lit capture);
-    # predicted_minutes: this capture's own, from its measured step costs (optimize/plan.py)
-    comparable = capture is not None and capture.environment is None
-    plan = None
-    if capture is not None:
-        plan = capture_plan(capture, {preset: config}, calibrated())
-    emit("preset", preset=preset, chosen_for_budget=args.preset is None and args.time_budget is not None,
-         expected_minutes=expected.get("expected_minutes") if comparable else None,
-         expected_f1=expected.get("expected_f1") if comparable else None,
-         calibrated_on=load_calibration().get("scene"),
-         predicted_minutes=None if plan is None else round(plan.presets[preset].minutes, 2),
-         plan=None if plan is None else {**plan.presets[preset].to_json(), "costs": plan.costs.to_json()},
-         note=None if comparable else "calibrated on a point-lit scene; predicted_minutes is this capture's "
-                                      "own, from its measured step costs" if plan is not None else
-                                      "calibrated on a point-lit scene; the time comes from this capture's "
-                                      "measured steps (eta_s)")
+
+    def announce(capture, viewset=None, settings=None, material_settings=None) -> None:
+        # expected_*: the figures of the calibration scene lit as this capture is (point lights or
+        # an environment map; null where that kind is not calibrated); predicted_minutes: this
+        # capture's own, from its measured step costs (optimize/plan.py)
+        kind = lighting_kind(capture)
+        entries = calibrated(kind=kind)
+        expected = entries.get(preset, {})
+        plan = None
+        if settings is not None:
+            plan = make_plan(capture, {preset: config}, settings, staged=config.material == "staged",
+                             calibration=entries, viewset=viewset, material_settings=material_settings)
+        emit("preset", preset=preset, chosen_for_budget=args.preset is None and args.time_budget is not None,
+             expected_minutes=expected.get("expected_minutes"), expected_f1=expected.get("expected_f1"),
+             calibrated_on=calibration_scene(kind), lighting_kind=kind,
+             predicted_minutes=None if plan is None else round(plan.presets[preset].minutes, 2),
+             plan=None if plan is None else {**plan.presets[preset].to_json(), "costs": plan.costs.to_json(),
+                                             "render_settings": plan.settings},
+             note=None if expected else f"no calibration scene lit as this capture is ({kind}); the time "
+                                        "comes from this capture's measured steps")
+
+    if args.resume:
+        announce(capture)
+        return None
+    return announce

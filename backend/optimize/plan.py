@@ -29,9 +29,9 @@ convergence by ``FINAL_MATERIAL_CYCLES`` cycles four times as long at the finest
 refinement cycle. ``FIXED_SECONDS`` covers the process start, loading, initialisation and the
 effects decision. A time budget or an iteration cap cuts the prediction where the run would stop.
 
-The plan runs before the effects decision, so it times the render settings the decision most
-likely picks (``geometry_settings``), with those ``--effects`` forces; a decision that
-differs makes the run shorter or longer than planned. With shadow gradients the step is also
+A run plans its ``preset`` event with the effects it decided (``reconstruct``'s planner);
+``--plan`` and the Plan button decide nothing and time what the decision most likely picks
+(``geometry_settings``, with the ``--effects`` forces). With shadow gradients the step is also
 timed without them and charged at the samples a level keeps (``optimize.shadow_samples``).
 The calibration's step counts come from constant-material runs of the dragon: what another
 object's levels take is not known before it runs. A re-mesh between levels is left out. The

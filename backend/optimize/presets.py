@@ -3,8 +3,9 @@
 A preset is a set of overrides of ``ReconstructConfig``'s defaults; options given on the
 command line win over it. ``backend/presets.json`` (written by ``python -m backend bench
 calibrate``) records, per preset, the wall clock and F1@0.01 it reached on the dragon
-benchmark on the machine named there; :func:`preset_for_budget` reads it to turn a time
-budget into a preset."""
+benchmark on the machine named there (and, under ``kinds``, on the calibration scene of each
+kind of lighting); :func:`preset_for_budget` reads the dragon's to turn a time budget into a
+preset."""
 
 from __future__ import annotations
 
@@ -14,10 +15,9 @@ from pathlib import Path
 PRESETS = {
     "draft": {"max_size": 96, "coarse_size": 48, "initial_faces": 2000, "max_levels": 3, "level_iterations": 120,
               "validation_views": 4},
-    "balanced": {},
-    # Balanced's start with more and longer levels: on the dragon more levels bought more F1 per
-    # second than more views per step or a finer start (bench/report.md)
-    "final": {"max_size": 256, "max_levels": 16, "level_iterations": 600, "level_tolerance": 0.001},
+    # at most six levels; Final runs them until the surface stops improving (the defaults)
+    "balanced": {"max_levels": 6},
+    "final": {},
 }
 DEFAULT = "balanced"
 CALIBRATION_FILE = Path(__file__).resolve().parents[1] / "presets.json"
@@ -32,9 +32,26 @@ def load_calibration(path: Path = CALIBRATION_FILE) -> dict:
     return doc if isinstance(doc, dict) and isinstance(doc.get("presets"), dict) else {}
 
 
-def calibrated(path: Path = CALIBRATION_FILE) -> dict[str, dict]:
-    """Calibration entries that give an expected time, by preset name."""
-    return {name: p for name, p in load_calibration(path).get("presets", {}).items()
+def lighting_kind(capture) -> str:
+    """The kind of calibration scene a capture compares with: 'environment' when an
+    environment map lights it, else 'point' (point lights, a flash, or lighting to estimate)."""
+    return "environment" if capture is not None and capture.environment is not None else "point"
+
+
+def calibration_scene(kind: str = "point", path: Path = CALIBRATION_FILE) -> str | None:
+    """The description of the scene that calibrated ``kind`` (None: not calibrated)."""
+    doc = load_calibration(path)
+    sub = (doc.get("kinds") or {}).get(kind)
+    return sub.get("scene") if isinstance(sub, dict) else doc.get("scene") if kind == "point" else None
+
+
+def calibrated(path: Path = CALIBRATION_FILE, kind: str = "point") -> dict[str, dict]:
+    """Calibration entries that give an expected time, by preset name, from the calibration
+    scene of ``kind`` (the top level, the dragon's, for 'point'; {} for a kind not calibrated)."""
+    doc = load_calibration(path)
+    sub = (doc.get("kinds") or {}).get(kind)
+    presets = sub.get("presets", {}) if isinstance(sub, dict) else doc.get("presets", {}) if kind == "point" else {}
+    return {name: p for name, p in presets.items()
             if name in PRESETS and isinstance(p, dict) and isinstance(p.get("expected_minutes"), (int, float))}
 
 

@@ -60,7 +60,7 @@ class Result:
 
 
 def reconstruct(capture: Capture, out: RunFolder, config: ReconstructConfig, events, *, resume: bool = False,
-                material=None, objective_factory=Objective) -> Result:
+                material=None, objective_factory=Objective, planner=None) -> Result:
     """Reconstruct ``capture`` into the run folder ``out`` (docs/protocol.md), emitting
     ``events`` (an Emitter: ``events(name, **fields)``).
 
@@ -70,9 +70,13 @@ def reconstruct(capture: Capture, out: RunFolder, config: ReconstructConfig, eve
             names, through material.factory; a staged run always builds its own).
         objective_factory: builds each level's objective, called as ``Objective`` is (tests
             wrap the real one to record every step).
+        planner: called as ``planner(capture, viewset, geometry_settings, material_settings)``
+            once a new run has decided its effects, before its first step (the command times
+            this capture's steps with the chosen effects there: optimize/plan.py); its time is
+            not charged to the budget.
     Raises InputError on bad input; cancellation returns exit code 130."""
     run = Reconstruction(capture, out, config, events, material=material, resume=resume,
-                         objective_factory=objective_factory)
+                         objective_factory=objective_factory, planner=planner)
     return Result(run.run(), out.path)
 
 
@@ -96,7 +100,7 @@ class Reconstruction:
     """One run: its phases, snapshots and report (see ``reconstruct``)."""
 
     def __init__(self, capture: Capture, folder: RunFolder, config: ReconstructConfig, emit,
-                 material=None, resume: bool = False, objective_factory=Objective):
+                 material=None, resume: bool = False, objective_factory=Objective, planner=None):
         capture, held = accuracy.split(capture, config)  # --track-accuracy: views held out of every fit
         self.capture, self.folder, self.config = capture, folder, config
         self.state = RunState()
@@ -108,6 +112,7 @@ class Reconstruction:
         self.material = material
         self.resume = resume
         self.objective_factory = objective_factory
+        self.planner = planner
         self.viewset = ViewSet(capture, config.max_size)
         self.appearance = Appearance(capture, config, emit)
         self.appearance.start_lighting(folder.path, resume)
@@ -151,6 +156,10 @@ class Reconstruction:
         self._choose_stiffness(coarse)
         s.budget = FaceBudget(s.mesh.n_faces, growth=c.face_growth)
         s.timed("init", start)
+        if self.planner is not None:
+            with self.budget.uncharged():
+                self.planner(self.capture, self.viewset, self.settings(),
+                             self.appearance.material_settings(RenderSettings.for_geometry(c)))
         report = inspect(s.mesh)
         s.init = {"kind": kind, "faces": s.mesh.n_faces, "genus": report.genus,
                   "seconds": round(time.perf_counter() - start, 3)}

@@ -37,10 +37,10 @@ def test_levels_follow_the_face_budget_and_the_calibration_steps():
     assert [lv.size for lv in levels] == [48, 96, 96]
     assert [lv.faces for lv in levels] == [2000, 4000, 5000]  # x4 capped at D = 4000, then D + 1000
     assert all(lv.steps == draft.level_iterations for lv in levels) and source.startswith("config")
-    balanced = ReconstructConfig(**PRESETS["balanced"])
-    levels, source = plan.levels(balanced, {"levels": 8, "iterations": 1370})
+    final = ReconstructConfig(**PRESETS["final"])
+    levels, source = plan.levels(final, {"levels": 8, "iterations": 1370})
     assert len(levels) == 8 and {lv.steps for lv in levels} == {171} and source.startswith("calibration")
-    capped = ReconstructConfig(**PRESETS["balanced"], iterations=500)
+    capped = ReconstructConfig(**PRESETS["final"], iterations=500)
     assert sum(lv.steps for lv in plan.levels(capped, {"levels": 8, "iterations": 1370})[0]) == 500
 
 
@@ -73,6 +73,13 @@ def test_the_preset_event_carries_the_captures_prediction(capture, tmp_path):
     assert preset["expected_minutes"] is not None  # the calibration's figure stays (point-lit capture)
     assert sum(lv["steps"] for lv in preset["plan"]["levels"]) == 6  # the iteration cap
     assert preset["plan"]["costs"]["seconds"] < 30 and preset["plan"]["costs"]["points"]
+    # planned with the effects the run decided: after the decision, before the first step
+    order = [e["event"] for e in events]
+    assert order.index("effects") < order.index("preset") < next(
+        i for i, e in enumerate(events) if e["event"] == "progress" and e.get("stage") == "geometry")
+    decided = next(e for e in events if e["event"] == "effects")["enabled"]
+    timed = preset["plan"]["render_settings"]
+    assert timed["max_depth"] == decided["max_depth"] and (timed["sppi"] > 0) == decided["shadows"]
 
 
 def test_shadow_gradients_are_charged_at_the_samples_a_level_keeps(tmp_path):

@@ -407,7 +407,13 @@ def test_a_capture_with_no_light_is_refused_and_env_lights_it(capture, tmp_path)
     lights = next(e for e in events(run) if e["event"] == "effects")
     assert lights["enabled"]["emitters"] == ["environment"], lights
     promise = next(e for e in events(run) if e["event"] == "preset")
-    assert promise["expected_minutes"] is None and "point-lit" in promise["note"], "a point-lit time promised"
+    # never the point-lit dragon's figures: those of the HDR-lit calibration scene, or none
+    from backend.optimize.presets import calibrated, calibration_scene
+
+    assert promise["lighting_kind"] == "environment" and promise["calibrated_on"] == calibration_scene("environment")
+    hdr = calibrated(kind="environment").get(promise["preset"], {})
+    assert promise["expected_minutes"] == hdr.get("expected_minutes") and promise["expected_f1"] == hdr.get("expected_f1")
+    assert promise["calibrated_on"] is None or promise["calibrated_on"].startswith("blob_env")
 
 
 def test_cancel_stops_a_material_stage_within_seconds(capture, tmp_path):

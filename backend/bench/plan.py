@@ -1,0 +1,157 @@
+"""Predicted against measured: the plan's time and the calibration's F1 on held-out captures.
+
+``python -m backend bench plan --out OUT [--preset draft] [--captures a,b,...]`` synthesises
+five small captures of different kinds, none of which set a constant of the cost model
+(optimize/plan.py) or the calibration (``bench calibrate``), and runs ``reconstruct CAPTURE
+--preset PRESET`` on each with every other default (staged material, effects measured), as
+child processes, one after the other:
+
+- ``bunny48``: the bunny with a procedural albedo texture, two point lights per camera;
+- ``blob_env48``: the built-in blob under the ``venice_sunset`` HDR map;
+- ``teacup48``: the teacup (a concavity the visual hull fills), point lights;
+- ``arma_env64``: the armadillo under ``forest_slope`` (self-shadowing: shadow gradients);
+- ``spot_flash48``: Spot with a texture, lit by a flash at each camera.
+
+For each it reads the ``preset`` event (``predicted_minutes``, planned once the run has
+decided its effects; ``expected_f1``, the calibration scene's of the capture's lighting kind)
+and compares them with the process's wall clock and the run's F1@0.01 against the capture's
+true mesh. Prints a table, the median and worst absolute time error, and writes
+``OUT/plan.json``. Target (issue #23): time within ±30 %, F1 within 0.03."""
+
+from __future__ import annotations
+
+import json
+import statistics
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+from .. import fsio
+from ..errors import InputError, require
+from ..events import Emitter
+from ._data import SHARED_DATA
+from ._machine import code_version, machine
+from .sweep import REPO, Setting, reconstruct_child
+
+MESHES = SHARED_DATA / "meshes"
+ENVMAPS = SHARED_DATA / "envmaps"
+CAPTURES = {
+    "bunny48": ["--mesh", MESHES / "shapefromtracing" / "bunny.obj", "--up", "y", "--views", 10, "--resolution", 48,
+                "--albedo", "pattern"],
+    "blob_env48": ["--views", 8, "--resolution", 48, "--lighting", "env", "--env", ENVMAPS / "venice_sunset_1k.hdr"],
+    "teacup48": ["--mesh", MESHES / "shapefromtracing" / "teacup.obj", "--up", "y", "--views", 8, "--resolution", 48],
+    "arma_env64": ["--mesh", MESHES / "stanford" / "armadillo_86k.obj", "--up", "y", "--views", 16, "--resolution", 64,
+                   "--lighting", "env", "--env", ENVMAPS / "forest_slope_1k.hdr", "--albedo", "pattern"],
+    "spot_flash48": ["--mesh", MESHES / "crane" / "spot" / "spot.obj", "--up", "y", "--views", 12, "--resolution", 48,
+                     "--lighting", "flash", "--albedo", "pattern"],
+}
+# the smoke test's capture (not among the default ones): the blob, 6 views at 24 px
+SMOKE = {"tiny": ["--views", 6, "--resolution", 24, "--spp", 8, "--held-out", 0]}
+TIME_TOLERANCE = 0.30
+F1_TOLERANCE = 0.03
+
+
+class _Preset(Setting):
+    """A preset with every default (the staged material, the measured effects); ``iterations``
+    caps the steps (the smoke test)."""
+
+    def args(self) -> list[str]:
+        return ["--preset", self.preset] + ([] if self.iterations is None else ["--iterations", str(self.iterations)])
+
+
+def synthesise(name: str, out: Path, log: Path) -> Path:
+    folder = out / "captures" / name
+    if (folder / "capture.json").is_file():
+        return folder
+    spec = {**CAPTURES, **SMOKE}[name]
+    for arg in spec:
+        if isinstance(arg, Path):
+            require(arg.is_file(), arg, "benchmark data not found", "fetch the shared data or set SFT_SHARED_DATA")
+    log.parent.mkdir(parents=True, exist_ok=True)
+    cmd = [sys.executable, "-m", "backend", "synth", "--out", str(folder), "--overwrite", *map(str, spec)]
+    with open(log, "w") as err:
+        rc = subprocess.run(cmd, stdout=subprocess.DEVNULL, stderr=err, cwd=REPO).returncode
+    require(rc == 0, log, f"synth of {name} failed", "see the log")
+    return folder
+
+
+def measure(name: str, capture: Path, preset: str, out: Path, variant: str | None,
+            iterations: int | None = None) -> dict:
+    run = out / "runs" / name
+    timing = reconstruct_child(capture, run, _Preset(name, preset, iterations=iterations), out / "logs" / f"{name}.log",
+                               variant=variant)
+    row = {"capture": name, "preset": preset, "seconds": round(timing["seconds"], 1),
+           "cpu_seconds": round(timing["cpu_seconds"], 1), "rc": timing["rc"], "load_before": timing["load_before"],
+           "load_after": timing["load_after"]}
+    if timing["rc"] != 0:
+        return row
+    events = [json.loads(line) for line in (run / "events.jsonl").read_text().splitlines() if line.strip()]
+    promise = next(e for e in events if e["event"] == "preset")
+    effects = next((e for e in events if e["event"] == "effects"), {})
+    report = json.loads((run / "report.json").read_text())
+    f1 = (report.get("metrics") or {}).get("f1@0.01")
+    predicted = promise.get("predicted_minutes")
+    row.update(lighting_kind=promise.get("lighting_kind"), predicted_minutes=predicted,
+               measured_minutes=round(timing["seconds"] / 60, 2),
+               time_error=None if predicted is None else round(predicted * 60 / timing["seconds"] - 1, 3),
+               expected_f1=promise.get("expected_f1"), f1=None if f1 is None else round(f1 / 100, 4),
+               effects=effects.get("enabled"), levels=len(report.get("levels", [])),
+               plan=(promise.get("plan") or {}) and {k: promise["plan"][k] for k in
+                                                     ("geometry_s", "material_s", "polish_s", "fixed_s")},
+               measured=report.get("timings"))
+    if row["f1"] is not None and row["expected_f1"] is not None:
+        row["f1_error"] = round(row["expected_f1"] - row["f1"], 4)
+    return row
+
+
+def summary(rows: list[dict]) -> dict:
+    errors = [abs(r["time_error"]) for r in rows if r.get("time_error") is not None]
+    f1 = [abs(r["f1_error"]) for r in rows if r.get("f1_error") is not None]
+    return {"time_median_abs_error": round(statistics.median(errors), 3) if errors else None,
+            "time_worst_abs_error": round(max(errors), 3) if errors else None,
+            "time_within": sum(e <= TIME_TOLERANCE for e in errors), "f1_within": sum(e <= F1_TOLERANCE for e in f1),
+            "f1_median_abs_error": round(statistics.median(f1), 4) if f1 else None, "runs": len(rows)}
+
+
+def table(rows: list[dict]) -> str:
+    head = ("capture", "kind", "effects", "predicted min", "measured min", "error", "expected F1", "F1")
+    lines = ["  ".join(head)]
+    for r in rows:
+        e = r.get("effects") or {}
+        effects = "+".join(k for k in ("shadows", "specular") if e.get(k)) + (f" depth {e['max_depth']}" if e else "")
+        lines.append("  ".join(str(x) for x in (
+            r["capture"], r.get("lighting_kind"), effects or "-", r.get("predicted_minutes"), r.get("measured_minutes"),
+            "-" if r.get("time_error") is None else f"{100 * r['time_error']:+.0f} %", r.get("expected_f1"),
+            r.get("f1"))))
+    return "\n".join(lines)
+
+
+def add_arguments(parser) -> None:
+    parser.add_argument("--out", type=Path, default=REPO / "runs" / "bench-plan", help="work folder")
+    parser.add_argument("--preset", default="draft", help="preset to run (default: %(default)s)")
+    parser.add_argument("--captures", default=",".join(CAPTURES),
+                        help="comma-separated, of %(default)s (default: all)")
+    parser.add_argument("--iterations", type=int, help="cap every run's steps (a smoke test; default: none)")
+    parser.add_argument("--variant", help="Mitsuba variant (default: automatic)")
+
+
+def run(args) -> int:
+    emit = Emitter()
+    names = [n.strip() for n in args.captures.split(",") if n.strip()]
+    unknown = [n for n in names if n not in CAPTURES and n not in SMOKE]
+    if unknown:
+        raise InputError(None, f"unknown capture {', '.join(unknown)}", f"choose from {', '.join(CAPTURES)}")
+    rows = []
+    for i, name in enumerate(names):
+        emit("stage", stage=f"plan:{name}", level=i, faces=0)
+        capture = synthesise(name, args.out, args.out / "logs" / f"synth_{name}.log")
+        rows.append(measure(name, capture, args.preset, args.out, args.variant, args.iterations))
+        emit("progress", stage="plan", iteration=i + 1, iterations=len(names), fraction=(i + 1) / len(names),
+             capture=name, **{k: rows[-1].get(k) for k in ("predicted_minutes", "measured_minutes", "rc")})
+    doc = {"machine": machine(args.variant), "code": code_version(), "measured": time.strftime("%Y-%m-%dT%H:%M:%S"),
+           "preset": args.preset, "rows": rows, "summary": summary(rows)}
+    fsio.write_json(args.out / "plan.json", doc)
+    print(table(rows), flush=True)
+    emit("done", result=str(args.out / "plan.json"), **doc["summary"])
+    return 0 if all(r["rc"] == 0 for r in rows) else 1

@@ -1,0 +1,30 @@
+"""``bench plan``: a real preset run on a tiny capture, its promise read back and compared."""
+
+from __future__ import annotations
+
+import json
+
+from backend.bench import plan as bench_plan
+from tests.helpers import run_cli
+
+
+def test_bench_plan_compares_the_promise_with_the_run(tmp_path):
+    out = tmp_path / "bench"
+    proc = run_cli("bench", "plan", "--out", out, "--captures", "tiny", "--iterations", 6, timeout=900)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    doc = json.loads((out / "plan.json").read_text())
+    (row,) = doc["rows"]
+    assert row["rc"] == 0 and row["capture"] == "tiny" and row["lighting_kind"] == "point"
+    assert row["predicted_minutes"] > 0 and row["measured_minutes"] > 0
+    assert row["time_error"] == round(row["predicted_minutes"] * 60 / row["seconds"] - 1, 3) or \
+        abs(row["time_error"] - (row["predicted_minutes"] * 60 / row["seconds"] - 1)) < 0.01
+    assert row["effects"] is not None and set(row["plan"]) == {"geometry_s", "material_s", "polish_s", "fixed_s"}
+    assert doc["summary"]["runs"] == 1 and doc["summary"]["time_median_abs_error"] == abs(row["time_error"])
+    assert "tiny" in proc.stdout and "predicted min" in proc.stdout
+
+
+def test_summary_counts_what_is_within_the_targets():
+    rows = [{"time_error": 0.1, "f1_error": 0.01}, {"time_error": -0.4, "f1_error": -0.05}, {"time_error": 0.25}]
+    s = bench_plan.summary(rows)
+    assert s["time_median_abs_error"] == 0.25 and s["time_worst_abs_error"] == 0.4
+    assert s["time_within"] == 2 and s["f1_within"] == 1 and s["runs"] == 3

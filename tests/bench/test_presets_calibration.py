@@ -1,0 +1,85 @@
+"""The shipped calibration file (``backend/presets.json``) describes the presets as they ship,
+names the commit it was measured on, and no preset is dominated by a cheaper one.
+
+These read the committed file, which ``python -m backend bench calibrate`` writes; they fail
+when a preset changes without a new calibration, or when a costlier preset is not more
+accurate (Final is then either recalibrated into the most accurate or removed)."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+from pathlib import Path
+
+import pytest
+
+from backend.bench.calibrate import KINDS, calibration, dominated
+from backend.optimize.presets import CALIBRATION_FILE, PRESETS
+
+REPO = Path(__file__).resolve().parents[2]
+
+
+@pytest.fixture(scope="module")
+def shipped() -> dict:
+    assert CALIBRATION_FILE.is_file(), "backend/presets.json is missing: run python -m backend bench calibrate"
+    return json.loads(CALIBRATION_FILE.read_text())
+
+
+def test_every_kind_is_calibrated_and_the_top_level_is_the_dragons(shipped):
+    assert set(shipped["kinds"]) == set(KINDS)
+    for kind, scene in KINDS.items():
+        assert shipped["kinds"][kind]["scene"].startswith(scene + ":")
+    assert shipped["presets"] == shipped["kinds"]["point"]["presets"] and shipped["scene"].startswith("dragon:")
+
+
+@pytest.mark.parametrize("kind", sorted(KINDS))
+def test_every_preset_is_calibrated_as_it_ships(shipped, kind):
+    entries = shipped["kinds"][kind]["presets"]
+    assert set(entries) == set(PRESETS)
+    for name, entry in entries.items():
+        assert entry["overrides"] == PRESETS[name], f"{name} changed since it was calibrated: rerun bench calibrate"
+        assert entry["expected_minutes"] > 0 and 0 < entry["expected_f1"] <= 1
+
+
+@pytest.mark.parametrize("kind", sorted(KINDS))
+def test_no_preset_is_dominated_by_a_cheaper_one(shipped, kind):
+    entries = shipped["kinds"][kind]["presets"]
+    assert dominated(entries) == [], f"dominated presets on {kind}: {dominated(entries)}"
+    by_time = sorted(entries, key=lambda n: entries[n]["expected_minutes"])
+    assert by_time == ["draft", "balanced", "final"]
+    f1 = [entries[n]["expected_f1"] for n in by_time]
+    assert f1 == sorted(f1) and len(set(f1)) == len(f1)
+
+
+@pytest.mark.parametrize("kind", sorted(KINDS))
+def test_the_calibration_names_one_clean_commit_of_this_history(shipped, kind):
+    code = shipped["kinds"][kind]["code"]
+    assert "," not in code and "+dirty" not in code and code != "unknown", code
+    if not (REPO / ".git").exists():
+        pytest.skip("not a git checkout: the commit cannot be looked up")
+    known = subprocess.run(["git", "-C", str(REPO), "cat-file", "-e", f"{code}^{{commit}}"], capture_output=True)
+    if known.returncode != 0 and subprocess.run(["git", "-C", str(REPO), "rev-parse", "--is-shallow-repository"],
+                                                capture_output=True, text=True).stdout.strip() == "true":
+        pytest.skip("shallow clone: the calibration commit is not fetched")
+    assert known.returncode == 0, f"{code} is not a commit of this repository"
+    ancestor = subprocess.run(["git", "-C", str(REPO), "merge-base", "--is-ancestor", code, "HEAD"])
+    assert ancestor.returncode == 0, f"{code} is not an ancestor of HEAD"
+
+
+def test_dominance_is_found_in_a_calibration_built_from_rows():
+    # the old Final: slower than Balanced and less accurate
+    def row(name, seconds, f1):
+        return {"scene": "dragon", "name": name, "rc": 0, "seconds": seconds, "cpu_seconds": seconds, "f1": f1,
+                "knobs": {}, "code": "abc"}
+
+    machine = {"cpu": "x", "cores": 2}
+    doc = calibration([row("draft", 68, 91.9), row("balanced", 399, 97.2), row("final", 746, 95.7)], machine)
+    assert dominated(doc["presets"]) == [("final", "balanced")]
+    assert all(doc["presets"][n]["overrides"] == PRESETS[n] for n in PRESETS)
+    assert doc["code"] == "abc" and list(doc["kinds"]) == ["point"]
+    hdr = [{**row(n, t, f), "scene": "blob_env", "code": "def"} for n, t, f in
+           (("draft", 50, 95.0), ("balanced", 300, 97.0), ("final", 600, 98.0))]
+    doc = calibration([row("draft", 68, 91.9), row("balanced", 399, 97.2), row("final", 746, 97.9)] + hdr, machine)
+    assert dominated(doc["presets"]) == [] and doc["kinds"]["environment"]["code"] == "def"
+    assert doc["kinds"]["environment"]["presets"]["final"]["expected_f1"] == 0.98
+    assert "target" not in doc["kinds"]["environment"]["presets"]["draft"]  # the targets are the dragon's
