@@ -204,7 +204,7 @@ def _preset_event(args, emit, config, capture):
     the run will use; a resumed run announces it at once, without a plan."""
     preset = choose_preset(args)
 
-    def announce(capture, viewset=None, settings=None, material_settings=None) -> None:
+    def announce(capture, viewset=None, settings=None, material_settings=None, initial=None) -> None:
         # expected_*: the figures of the calibration scene lit as this capture is (point lights or
         # an environment map; null where that kind is not calibrated); predicted_minutes: this
         # capture's own, from its measured step costs (optimize/plan.py)
@@ -214,7 +214,8 @@ def _preset_event(args, emit, config, capture):
         plan = None
         if settings is not None:
             plan = make_plan(capture, {preset: config}, settings, staged=config.material == "staged",
-                             calibration=entries, viewset=viewset, material_settings=material_settings)
+                             calibration=entries, viewset=viewset, material_settings=material_settings,
+                             initial=initial)
         emit("preset", preset=preset, chosen_for_budget=args.preset is None and args.time_budget is not None,
              expected_minutes=expected.get("expected_minutes"), expected_f1=expected.get("expected_f1"),
              calibrated_on=calibration_scene(kind), lighting_kind=kind,

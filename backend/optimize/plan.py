@@ -11,32 +11,26 @@ view's forward render at half the validation samples (a validation loss renders 
 V views twice every ``eval_every`` steps), ``m`` one view's material-only gradient step;
 ``p`` is the pixels of one view at the level's size (the capture's aspect, capped at its
 resolution), ``f`` the faces, ``k`` the preset's views per step. They are timed on this
-capture (its cameras, lights or environment map, image sizes) with the render settings the
-run's geometry steps use, after one untimed step that compiles the kernels, on icospheres
-fitted to the capture (``init.sphere_mesh``) at the smallest and the largest face counts the
-presets' levels reach (the cost of a step depends on the face count, not on the shape), at
-the smallest and the largest image size: four points, three coefficients.
+capture (cameras, lights, image sizes) with the run's render settings, after an untimed step
+that compiles the kernels, on the run's initial mesh split to the largest face count the
+levels reach (``probe_mesh``; icospheres for ``--plan``), at the smallest and the largest
+image size: four points, three coefficients.
 
-A preset's levels follow its settings: level l renders at ``level_size(l)`` and has the faces
-the face budget gives after l subdivisions (``FaceBudget``: x4, capped at D, D grown);
-``levels`` and ``steps`` per level are those the preset took on the calibration scene
-(``presets.json``: ``levels`` and ``iterations`` of the calibration run; levels end on their
-own convergence), else ``max_levels`` levels of ``level_iterations`` steps. With the staged
-material (the default), every level is followed by one material cycle of
-``FitSettings.iterations`` one-view material steps plus a full-view evaluation, geometry
-convergence by ``FINAL_MATERIAL_CYCLES`` cycles four times as long at the finest size, and
-``POLISH_ROUNDS`` polish rounds of ``POLISH_STEPS`` geometry steps each, each followed by a
-refinement cycle. ``FIXED_SECONDS`` covers the process start, loading, initialisation and the
-effects decision. A time budget or an iteration cap cuts the prediction where the run would stop.
+A preset's levels follow its settings: level l renders at ``level_size(l)`` with the faces
+the face budget gives after l subdivisions (``FaceBudget``); ``levels`` and ``steps`` per
+level are the calibration run's (``presets.json``), else ``max_levels`` x ``level_iterations``.
+With the staged material (the default) every level is followed by one material cycle of
+``FitSettings.iterations`` one-view steps and a full-view evaluation, geometry convergence by
+``FINAL_MATERIAL_CYCLES`` cycles four times as long, and ``POLISH_ROUNDS`` (at most
+``polish_rounds``) polish rounds of ``POLISH_STEPS`` steps, each with a refinement cycle.
+``FIXED_SECONDS`` covers start, loading, initialisation and the effects decision. A time
+budget or an iteration cap cuts the prediction where the run would stop.
 
 A run plans its ``preset`` event with the effects it decided (``reconstruct``'s planner);
-``--plan`` and the Plan button decide nothing and time what the decision most likely picks
-(``geometry_settings``, with the ``--effects`` forces). With shadow gradients the step is also
-timed without them and charged at the samples a level keeps (``optimize.shadow_samples``).
-The calibration's step counts come from constant-material runs of the dragon: what another
-object's levels take is not known before it runs. A re-mesh between levels is left out. The
-preset event measures only the chosen preset's points; docs/results.md ("Predicted time")
-compares predicted and measured times."""
+``--plan`` decides nothing and times the likely settings (``geometry_settings``). Shadow
+gradients are charged at the samples a level keeps (``optimize.shadow_samples``). Step counts
+come from the calibration scene lit as the capture is; a re-mesh is left out. ``bench plan``
+compares predicted and measured times (docs/results.md, "Predicted time")."""
 
 from __future__ import annotations
 
@@ -58,8 +52,7 @@ FINAL_MATERIAL_CYCLES = 4.5  # long cycles (x4 iterations) on the converged geom
 POLISH_ROUNDS = 2.5  # each followed by one long refinement cycle
 POLISH_STEPS = 170  # steps per polish round (at most level_iterations x polish_length)
 MATERIAL_ITERATIONS = 40  # FitSettings.iterations
-# a material stage's iteration beyond its render and gradient (mesh-color Adam, smoothness term,
-# highlight weights), measured on a staged Draft run
+# a material iteration's own work beyond render and gradient (Adam, smoothness, highlight weights)
 MATERIAL_OVERHEAD_S = 0.03
 MAX_PROBE_FACES = 20480  # larger face counts are extrapolated (a probe step there costs seconds)
 
@@ -221,7 +214,8 @@ def predict(name: str, config, costs: StepCosts, pixels_at, n_views: int, staged
         material += FINAL_MATERIAL_CYCLES * cycle_seconds(costs, p, last.faces, n_views, scale=4)
         step = c.views_per_step * costs("gradient", p, last.faces) + 2 * val * costs("forward", p, last.faces) / c.eval_every
         steps = min(POLISH_STEPS, c.level_iterations * c.polish_length)
-        polish = POLISH_ROUNDS * (steps * step + cycle_seconds(costs, p, last.faces, n_views, scale=4))
+        rounds = min(POLISH_ROUNDS, c.polish_rounds)
+        polish = rounds * (steps * step + cycle_seconds(costs, p, last.faces, n_views, scale=4))
     return PresetPlan(name, plan, source, geometry, material, polish, FIXED_SECONDS, c.time_budget_s,
                       (entry or {}).get("expected_f1"))
 
@@ -251,15 +245,26 @@ def probe_points(configs, pixels_at) -> tuple[list[int], list[int]]:
     return sorted({sizes[0], sizes[-1]}), spheres
 
 
+def probe_mesh(capture, faces: int, initial=None):
+    """About ``faces`` faces of ``initial`` (the run's initial mesh, split 1-to-4 while that comes
+    nearer: its concavities cost shadow and indirect rays a sphere has not), else an icosphere."""
+    from ..geometry.init.sphere import sphere_mesh
+    from ..geometry.subdivide import midpoint
+
+    mesh = sphere_mesh(capture, faces) if initial is None else initial
+    while initial is not None and mesh.n_faces * 2 < faces:
+        mesh = midpoint(mesh)[0]
+    return mesh
+
+
 def measure(capture, viewset, settings, sizes: list[int], faces: list[int], tone: str = "log",
-            validation_spp: int = 16, repeats: int = 3, material_settings=None) -> StepCosts:
+            validation_spp: int = 16, repeats: int = 3, material_settings=None, initial=None) -> StepCosts:
     """Time one view's geometry step, validation render and material step at every (size,
     faces) of ``sizes`` x ``faces`` on this capture with ``settings`` (RenderSettings of the
     geometry steps; the material step with ``material_settings``, default the same), with the
-    estimated constant material."""
+    estimated constant material, on ``probe_mesh`` of ``initial``."""
     import drjit as dr
 
-    from ..geometry.init.sphere import sphere_mesh
     from ..material import factory
     from .appearance import lit_environment
     from .objective import Objective
@@ -271,14 +276,13 @@ def measure(capture, viewset, settings, sizes: list[int], faces: list[int], tone
     pair = [0, 1] if len(viewset) > 1 else [0]  # a step renders views_per_step views: time two, per view
     points = []
     for n_faces in faces:
-        mesh = sphere_mesh(capture, n_faces)
+        mesh = probe_mesh(capture, n_faces, initial)
         for size in sizes:
             views = (viewset.at(size)[first:] + viewset.at(size))[:len(pair)]
             objective = Objective(mesh, material, views, settings, environment, tone=tone)
 
             def timed(call) -> float:
-                # the median of ``repeats`` steps, up to 5 while they are short: another process's
-                # burst of work on a shared machine slows single steps several times
+                # the median of ``repeats`` steps (5 while short): another process's burst slows single steps
                 times = []
                 while len(times) < repeats or (len(times) < 5 and sum(times) < 1.0):
                     t0 = time.perf_counter()
@@ -310,12 +314,7 @@ def measure(capture, viewset, settings, sizes: list[int], faces: list[int], tone
 def pixels_for(viewset):
     """One view's pixels at a level size (the middle view, as measured)."""
     camera = viewset.views[len(viewset) // 2].camera
-
-    def pixels_at(size: int) -> int:
-        w, h = frame_size(camera, size)
-        return w * h
-
-    return pixels_at
+    return lambda size: int(np.prod(frame_size(camera, size)))
 
 
 @dataclass
@@ -350,10 +349,10 @@ def minutes_text(minutes: float) -> str:
 
 
 def make_plan(capture, configs: dict, settings, staged: bool, calibration: dict | None = None,
-              viewset=None, material_settings=None) -> Plan:
+              viewset=None, material_settings=None, initial=None) -> Plan:
     """Measure this capture's step costs and predict every preset of ``configs`` ({name:
     ReconstructConfig}); ``settings``: the geometry steps' RenderSettings; ``calibration``:
-    {preset: calibration entry}."""
+    {preset: calibration entry}; ``initial``: the run's initial mesh (None: icospheres)."""
     from .views import ViewSet
 
     largest = max(c.max_size for c in configs.values())
@@ -362,7 +361,7 @@ def make_plan(capture, configs: dict, settings, staged: bool, calibration: dict 
     sizes, faces = probe_points(configs.values(), pixels_at)
     first = next(iter(configs.values()))
     costs = measure(capture, viewset, settings, sizes, faces, first.tone, first.validation_spp,
-                    material_settings=material_settings if staged else None)
+                    material_settings=material_settings if staged else None, initial=initial)
     presets = {name: predict(name, c, costs, pixels_at, len(viewset), staged, (calibration or {}).get(name))
                for name, c in configs.items()}
     return Plan(costs, presets, dataclasses.asdict(settings))

@@ -13,8 +13,9 @@ import json
 from pathlib import Path
 
 PRESETS = {
+    # a quick look: two polish rounds at most (four can take longer than its three levels)
     "draft": {"max_size": 96, "coarse_size": 48, "initial_faces": 2000, "max_levels": 3, "level_iterations": 120,
-              "validation_views": 4},
+              "validation_views": 4, "polish_rounds": 2},
     # at most six levels; Final runs them until the surface stops improving (the defaults)
     "balanced": {"max_levels": 6},
     "final": {},

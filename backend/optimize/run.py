@@ -70,10 +70,10 @@ def reconstruct(capture: Capture, out: RunFolder, config: ReconstructConfig, eve
             names, through material.factory; a staged run always builds its own).
         objective_factory: builds each level's objective, called as ``Objective`` is (tests
             wrap the real one to record every step).
-        planner: called as ``planner(capture, viewset, geometry_settings, material_settings)``
-            once a new run has decided its effects, before its first step (the command times
-            this capture's steps with the chosen effects there: optimize/plan.py); its time is
-            not charged to the budget.
+        planner: called as ``planner(capture, viewset, geometry_settings, material_settings,
+            initial_mesh)`` once a new run has decided its effects, before its first step (the
+            command times this capture's steps there: optimize/plan.py); its time is not
+            charged to the budget.
     Raises InputError on bad input; cancellation returns exit code 130."""
     run = Reconstruction(capture, out, config, events, material=material, resume=resume,
                          objective_factory=objective_factory, planner=planner)
@@ -159,7 +159,7 @@ class Reconstruction:
         if self.planner is not None:
             with self.budget.uncharged():
                 self.planner(self.capture, self.viewset, self.settings(),
-                             self.appearance.material_settings(RenderSettings.for_geometry(c)))
+                             self.appearance.material_settings(RenderSettings.for_geometry(c)), s.mesh)
         report = inspect(s.mesh)
         s.init = {"kind": kind, "faces": s.mesh.n_faces, "genus": report.genus,
                   "seconds": round(time.perf_counter() - start, 3)}

@@ -16,8 +16,9 @@ def test_bench_plan_compares_the_promise_with_the_run(tmp_path):
     (row,) = doc["rows"]
     assert row["rc"] == 0 and row["capture"] == "tiny" and row["lighting_kind"] == "point"
     assert row["predicted_minutes"] > 0 and row["measured_minutes"] > 0
-    assert row["time_error"] == round(row["predicted_minutes"] * 60 / row["seconds"] - 1, 3) or \
-        abs(row["time_error"] - (row["predicted_minutes"] * 60 / row["seconds"] - 1)) < 0.01
+    # the error of the promise against the process's wall clock (both rounded in the file)
+    slack = 0.6 / row["seconds"] + 0.01
+    assert abs(row["time_error"] - (row["predicted_minutes"] * 60 / row["seconds"] - 1)) < slack
     assert row["effects"] is not None and set(row["plan"]) == {"geometry_s", "material_s", "polish_s", "fixed_s"}
     assert doc["summary"]["runs"] == 1 and doc["summary"]["time_median_abs_error"] == abs(row["time_error"])
     assert "tiny" in proc.stdout and "predicted min" in proc.stdout
