@@ -162,7 +162,7 @@ def run(args) -> int:
     if capture is not None:
         Appearance.check(capture, config)
     if getattr(args, "plan", False):
-        return _print_plan(args, capture)
+        return _print_plan(args, capture, config.lighting)
     folder = RunFolder.create(args.out, resume=args.resume, overwrite=args.overwrite)
     if not args.resume and getattr(args, "argv", None):
         folder.record_command(absolute_paths(args.argv, args))
@@ -185,11 +185,11 @@ def _preset_configs(args, names) -> dict:
     return {name: config_from_args(SimpleNamespace(**{**vars(args), "preset": name})) for name in names}
 
 
-def _print_plan(args, capture) -> int:
+def _print_plan(args, capture, lighting: str) -> int:
     """--plan: each preset's predicted time on this capture (optimize/plan.py), printed; no run."""
     require(capture is not None, args.capture, "--plan needs a capture folder",
             "write the capture first (capture-from-video), then plan on it")
-    plan = capture_plan(capture, _preset_configs(args, PRESETS), calibrated(kind=lighting_kind(capture)))
+    plan = capture_plan(capture, _preset_configs(args, PRESETS), calibrated(kind=lighting_kind(capture, lighting)))
     print(plan.table())
     print(f"{plan.line()} on this capture (step costs measured in {plan.costs.seconds:.1f} s)", flush=True)
     # the same as one event (docs/protocol.md) for the add-on's Plan button
@@ -208,7 +208,7 @@ def _preset_event(args, emit, config, capture):
         # expected_*: the figures of the calibration scene lit as this capture is (point lights or
         # an environment map; null where that kind is not calibrated); predicted_minutes: this
         # capture's own, from its measured step costs (optimize/plan.py)
-        kind = lighting_kind(capture)
+        kind = lighting_kind(capture, config.lighting)
         entries = calibrated(kind=kind)
         expected = entries.get(preset, {})
         plan = None

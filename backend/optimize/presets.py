@@ -33,10 +33,13 @@ def load_calibration(path: Path = CALIBRATION_FILE) -> dict:
     return doc if isinstance(doc, dict) and isinstance(doc.get("presets"), dict) else {}
 
 
-def lighting_kind(capture) -> str:
+def lighting_kind(capture, lighting: str = "captured") -> str:
     """The kind of calibration scene a capture compares with: 'environment' when an
-    environment map lights it, else 'point' (point lights, a flash, or lighting to estimate)."""
-    return "environment" if capture is not None and capture.environment is not None else "point"
+    environment map lights it (captured, or ``lighting`` 'estimate': one is fitted), else
+    'point' (point lights or a flash)."""
+    if lighting == "estimate" or (capture is not None and capture.environment is not None):
+        return "environment"
+    return "point"
 
 
 def calibration_scene(kind: str = "point", path: Path = CALIBRATION_FILE) -> str | None:

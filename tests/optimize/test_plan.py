@@ -102,3 +102,27 @@ def test_shadow_gradients_are_charged_at_the_samples_a_level_keeps(tmp_path):
     (point,) = costs.points
     assert point.gradient > 0 and point.forward > 0 and point.material > 0
     assert costs.coefficients["gradient"][0] + costs.coefficients["gradient"][1] * point.pixels > 0
+
+
+def test_a_capture_is_promised_the_figures_of_its_kind_of_lighting(tmp_path):
+    """Point lights or a flash: the dragon's; an environment map, given or estimated: the
+    HDR-lit scene's; a file without kinds (older format): the top level for point lights only."""
+    from types import SimpleNamespace
+
+    from backend.optimize.presets import calibrated, calibration_scene, lighting_kind
+
+    lit = SimpleNamespace(environment=object())
+    dark = SimpleNamespace(environment=None)
+    assert lighting_kind(lit) == "environment" and lighting_kind(dark) == "point"
+    assert lighting_kind(dark, "estimate") == "environment" and lighting_kind(dark, "flash") == "point"
+    entry = {"expected_minutes": 2.0, "expected_f1": 0.9}
+    path = tmp_path / "presets.json"
+    path.write_text(json.dumps({"scene": "dragon: x", "presets": {"draft": entry},
+                                "kinds": {"point": {"scene": "dragon: x", "presets": {"draft": entry}},
+                                          "environment": {"scene": "blob_env: y",
+                                                          "presets": {"draft": {**entry, "expected_f1": 0.8}}}}}))
+    assert calibrated(path, kind="environment")["draft"]["expected_f1"] == 0.8
+    assert calibrated(path)["draft"]["expected_f1"] == 0.9 and calibration_scene("environment", path) == "blob_env: y"
+    path.write_text(json.dumps({"scene": "dragon: x", "presets": {"draft": entry}}))
+    assert calibrated(path, kind="environment") == {} and calibration_scene("environment", path) is None
+    assert calibrated(path)["draft"] == entry
