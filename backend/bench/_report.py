@@ -59,8 +59,10 @@ def plot(rows: list[dict], scene: str, path: Path) -> None:
                 lw=1.2, label="Pareto front")
         ax.set_xscale("log")
         ax.xaxis.set_major_formatter(matplotlib.ticker.FuncFormatter(lambda x, _: f"{x:g}"))
-        ax.xaxis.set_minor_formatter(matplotlib.ticker.FuncFormatter(  # label 2x and 5x only
-            lambda x, _: f"{x:g}" if f"{x:e}"[0] in "25" else ""))
+        lo, hi = ax.get_xlim()
+        narrow = hi / max(lo, 1e-9) < 10  # within a decade: label every minor tick, else 2x and 5x
+        ax.xaxis.set_minor_formatter(matplotlib.ticker.FuncFormatter(
+            lambda x, _, narrow=narrow: f"{x:g}" if narrow or f"{x:e}"[0] in "25" else ""))
         ax.tick_params(axis="x", which="minor", labelsize=7)
         ax.set_xlabel(xlabel)
         ax.set_ylabel(ylabel)
