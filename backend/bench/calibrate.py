@@ -12,7 +12,9 @@ as ``reconstruct --preset NAME`` would, and writes the calibration file (default
 
 The top level is the dragon's (point lights: what time budgets and the panel use); ``kinds``
 holds every kind's, ``environment`` from the HDR-lit blob, which a capture lit by an
-environment map is promised (optimize/presets.py, ``calibrated``). ``expected_f1`` is F1@0.01
+environment map is promised (optimize/presets.py, ``calibrated``). Each scene is fitted with
+the material model its truth calls for (``MATERIALS``: one constant material for the dragon,
+the staged mesh colors for the textured blob). ``expected_f1`` is F1@0.01
 as a fraction (0.9 = 90 %). ``--from-results FILE`` writes the file from a sweep's
 ``results.jsonl`` instead of running anything; then each preset also gets
 ``recommended_overrides`` (ReconstructConfig fields, as in ``optimize/presets.py``): the
@@ -24,6 +26,7 @@ have. ``backend.optimize.presets.preset_for_budget`` picks a preset for a time b
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from pathlib import Path
 
@@ -40,6 +43,9 @@ SCENE = "dragon"
 # the calibration scene of each kind of lighting (optimize/presets.py: lighting_kind): the
 # dragon's figures are the file's top-level ones, which time budgets and the panel use
 KINDS = {"point": "dragon", "environment": "blob_env"}
+# the material each scene is fitted with: the dragon's truth is one glossy material; the
+# blob's is textured, which one constant material can only fit by bending the surface
+MATERIALS = {"dragon": "constant", "blob_env": "staged"}
 # time (minutes) and F1@0.01 (percent) each preset is meant to reach on the dragon; None: no limit
 TARGETS = {"draft": (3.0, 80.0), "balanced": (10.0, 90.0), "final": (None, None)}
 
@@ -116,7 +122,9 @@ def calibration(rows: list[dict], machine: dict, margin: float = 1.0) -> dict:
     PRESETS): the dragon's entries at the top level, every kind's under ``kinds``."""
     kinds = {}
     for kind, scene in KINDS.items():
-        doc = scene_calibration([r for r in rows if r.get("scene", SCENE) == scene], machine, scene, margin)
+        doc = scene_calibration([r for r in rows if r.get("scene", SCENE) == scene
+                                 and r.get("knobs", {}).get("material", "constant") == MATERIALS[scene]],
+                                machine, scene, margin)
         if doc["presets"]:
             kinds[kind] = doc
     top = kinds.get("point") or scene_calibration([], machine, SCENE, margin)
@@ -178,7 +186,7 @@ def run(args) -> int:
     if args.from_results:
         require(args.from_results.is_file(), args.from_results, "results file not found",
                 "run python -m backend bench sweep first, or leave out --from-results")
-        rows = [r for r in load_results(args.from_results) if r["scene"] in scenes]
+        rows = [r for r in load_results(args.from_results) if r["scene"] in KINDS.values()]
         require(any(r["name"] in names and r["scene"] == SCENE for r in rows), args.from_results,
                 f"no {SCENE} runs of the presets", f"run python -m backend bench sweep --grid presets --scenes {SCENE}")
         info = next((r["machine"] for r in rows if r.get("machine")), machine())
@@ -187,12 +195,13 @@ def run(args) -> int:
         info = machine(variant.choose(args.variant, emit))
         settings = {s.name: s for s in GRIDS["presets"]}
         # earlier rows of the work folder count for what this call does not run (one scene at a time)
-        rows = [r for r in load_results(args.work / "results.jsonl") if r["scene"] in scenes]
+        rows = [r for r in load_results(args.work / "results.jsonl") if r["scene"] in KINDS.values()]
         todo = [(scene, name) for scene in scenes for name in names]
         for i, (scene, name) in enumerate(todo):
             capture = ensure(scene, args.work / "scenes", emit)
             emit("stage", stage=f"calibrate:{scene}:{name}", level=i, faces=0)
-            row = measure(scene, capture, settings[name], args.work, args.repeats, float("inf"), args.variant)
+            setting = dataclasses.replace(settings[name], material=MATERIALS[scene])
+            row = measure(scene, capture, setting, args.work, args.repeats, float("inf"), args.variant)
             row["machine"], row["code"] = info, code_version()
             append_result(args.work / "results.jsonl", row)
             rows = [r for r in rows if (r["scene"], r["name"]) != (scene, name)] + [row]

@@ -62,13 +62,14 @@ class Setting:
     initial_faces: int | None = None
     max_levels: int | None = None
     init: str | None = None  # None: by the capture (carving with masks)
+    material: str = "constant"  # the sweep scores one constant material; calibrate: the scene's
 
     def args(self) -> list[str]:
         """The ``reconstruct`` options of this setting."""
-        out = ["--preset", self.preset, "--material", "constant"]  # the sweep scores one constant material
+        out = ["--preset", self.preset, "--material", self.material]
         for f in dataclasses.fields(self):
             value = getattr(self, f.name)
-            if f.name in ("name", "preset", "max_depth") or value is None:
+            if f.name in ("name", "preset", "max_depth", "material") or value is None:
                 continue
             out += ["--" + f.name.replace("_", "-"), str(value)]
         if self.max_depth is not None:
@@ -80,14 +81,15 @@ class Setting:
         c = dataclasses.asdict(ReconstructConfig())
         c.update(PRESETS[self.preset])
         c.update({k: v for k, v in dataclasses.asdict(self).items()
-                  if k not in ("name", "preset", "time_budget") and v is not None})
+                  if k not in ("name", "preset", "time_budget", "material") and v is not None})
         if self.max_depth is not None:
             c["integrator"] = "prb_projective"
         bounces = 1 if c["integrator"] == "direct_projective" else c["max_depth"] - 1
         return {"max_size": c["max_size"], "spp": c["spp"], "bounces": bounces,
                 "views_per_step": c["views_per_step"], "iterations": c["iterations"],
                 "time_budget_min": self.time_budget, "initial_faces": c["initial_faces"],
-                "max_levels": c["max_levels"], "level_iterations": c["level_iterations"], "init": c["init"] or "auto"}
+                "max_levels": c["max_levels"], "level_iterations": c["level_iterations"], "init": c["init"] or "auto",
+                "material": self.material}
 
 
 def _one_at_a_time(base: str, variations: dict[str, list]) -> list[Setting]:

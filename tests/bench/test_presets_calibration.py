@@ -81,9 +81,12 @@ def test_dominance_is_found_in_a_calibration_built_from_rows():
     assert dominated(doc["presets"]) == [("final", "balanced")]
     assert all(doc["presets"][n]["overrides"] == PRESETS[n] for n in PRESETS)
     assert doc["code"] == "abc" and list(doc["kinds"]) == ["point"]
-    hdr = [{**row(n, t, f), "scene": "blob_env", "code": "def"} for n, t, f in
+    hdr = [{**row(n, t, f), "scene": "blob_env", "code": "def", "knobs": {"material": "staged"}} for n, t, f in
            (("draft", 50, 95.0), ("balanced", 300, 97.0), ("final", 600, 98.0))]
-    doc = calibration([row("draft", 68, 91.9), row("balanced", 399, 97.2), row("final", 746, 97.9)] + hdr, machine)
+    # a row fitted with another material than the scene's (a constant-material sweep) is not the preset's
+    stale = {**row("final", 100, 99.0), "scene": "blob_env", "code": "old"}
+    doc = calibration([row("draft", 68, 91.9), row("balanced", 399, 97.2), row("final", 746, 97.9), stale] + hdr,
+                      machine)
     assert dominated(doc["presets"]) == [] and doc["kinds"]["environment"]["code"] == "def"
     assert doc["kinds"]["environment"]["presets"]["final"]["expected_f1"] == 0.98
     assert "target" not in doc["kinds"]["environment"]["presets"]["draft"]  # the targets are the dragon's
