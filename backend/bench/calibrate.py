@@ -141,8 +141,9 @@ def scene_calibration(rows: list[dict], machine: dict, scene: str, margin: float
         if row is None:
             continue
         presets[name] = entry(row)
-        # the preset as it shipped when measured: a test compares it with optimize/presets.py
-        presets[name]["overrides"] = PRESETS[name]
+        # the preset as it was when its run was measured (None: not recorded): a test compares
+        # it with optimize/presets.py
+        presets[name]["overrides"] = row.get("overrides")
         target = _target(name, row) if scene == SCENE else None  # the targets are the dragon's
         if target:
             presets[name]["target"] = target
@@ -202,7 +203,7 @@ def run(args) -> int:
             emit("stage", stage=f"calibrate:{scene}:{name}", level=i, faces=0)
             setting = dataclasses.replace(settings[name], material=MATERIALS[scene])
             row = measure(scene, capture, setting, args.work, args.repeats, float("inf"), args.variant)
-            row["machine"], row["code"] = info, code_version()
+            row["machine"], row["code"], row["overrides"] = info, code_version(), PRESETS[name]
             append_result(args.work / "results.jsonl", row)
             rows = [r for r in rows if (r["scene"], r["name"]) != (scene, name)] + [row]
             emit("progress", stage="calibrate", iteration=i + 1, iterations=len(todo), fraction=(i + 1) / len(todo),

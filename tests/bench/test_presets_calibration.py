@@ -81,7 +81,7 @@ def test_dominance_is_found_in_a_calibration_built_from_rows():
     # the old Final: slower than Balanced and less accurate
     def row(name, seconds, f1):
         return {"scene": "dragon", "name": name, "rc": 0, "seconds": seconds, "cpu_seconds": seconds, "f1": f1,
-                "knobs": {}, "code": "abc"}
+                "knobs": {}, "code": "abc", "overrides": PRESETS[name]}
 
     machine = {"cpu": "x", "cores": 2}
     doc = calibration([row("draft", 68, 91.9), row("balanced", 399, 97.2), row("final", 746, 95.7)], machine)
@@ -97,3 +97,6 @@ def test_dominance_is_found_in_a_calibration_built_from_rows():
     assert dominated(doc["presets"]) == [] and doc["kinds"]["environment"]["code"] == "def"
     assert doc["kinds"]["environment"]["presets"]["final"]["expected_f1"] == 0.98
     assert "target" not in doc["kinds"]["environment"]["presets"]["draft"]  # the targets are the dragon's
+    # a run that did not record its overrides cannot vouch for the preset as it ships
+    legacy = {k: v for k, v in row("draft", 68, 91.9).items() if k != "overrides"}
+    assert calibration([legacy], machine)["presets"]["draft"]["overrides"] is None
