@@ -11,7 +11,6 @@ import math
 import pytest
 
 from backend.bench import _pareto, calibrate, sweep
-from backend.bench._sweep_scenes import SCENES
 from backend.geometry.mesh import load_mesh
 from backend.optimize.presets import preset_for_budget
 
@@ -75,7 +74,7 @@ def test_calibration_file_from_rows(swept, tmp_path):
     rows = sweep.load_results(swept / "work" / "results.jsonl")
     as_presets = [dict(r, scene="dragon", name=n) for r, n in zip(sorted(rows, key=lambda r: r["name"]),
                                                                  ("draft", "balanced"))]
-    doc = calibrate.calibration(as_presets, as_presets[0]["machine"], SCENES["dragon"].description)
+    doc = calibrate.calibration(as_presets, as_presets[0]["machine"])
     assert isinstance(doc["machine"], str) and "cores" in doc["machine"]
     assert set(doc["presets"]) == {"draft", "balanced"}
     draft = doc["presets"]["draft"]
