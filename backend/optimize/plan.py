@@ -251,10 +251,11 @@ def probe_mesh(capture, faces: int, initial=None):
     from ..geometry.init.sphere import sphere_mesh
     from ..geometry.subdivide import midpoint
 
-    mesh = sphere_mesh(capture, faces) if initial is None else initial
-    while initial is not None and mesh.n_faces * 2 < faces:
-        mesh = midpoint(mesh)[0]
-    return mesh
+    if initial is None:
+        return sphere_mesh(capture, faces)
+    while initial.n_faces * 2 < faces:
+        initial = midpoint(initial)[0]
+    return initial
 
 
 def measure(capture, viewset, settings, sizes: list[int], faces: list[int], tone: str = "log",

@@ -42,19 +42,23 @@ def lighting_kind(capture, lighting: str = "captured") -> str:
     return "point"
 
 
-def calibration_scene(kind: str = "point", path: Path = CALIBRATION_FILE) -> str | None:
-    """The description of the scene that calibrated ``kind`` (None: not calibrated)."""
+def _kind(kind: str, path: Path) -> dict:
+    """The calibration of ``kind`` ({"scene", "presets", ...}): its entry under ``kinds``; for
+    'point' the top level of a file without kinds; {} when not calibrated."""
     doc = load_calibration(path)
     sub = (doc.get("kinds") or {}).get(kind)
-    return sub.get("scene") if isinstance(sub, dict) else doc.get("scene") if kind == "point" else None
+    return sub if isinstance(sub, dict) else doc if kind == "point" else {}
+
+
+def calibration_scene(kind: str = "point", path: Path = CALIBRATION_FILE) -> str | None:
+    """The description of the scene that calibrated ``kind`` (None: not calibrated)."""
+    return _kind(kind, path).get("scene")
 
 
 def calibrated(path: Path = CALIBRATION_FILE, kind: str = "point") -> dict[str, dict]:
     """Calibration entries that give an expected time, by preset name, from the calibration
     scene of ``kind`` (the top level, the dragon's, for 'point'; {} for a kind not calibrated)."""
-    doc = load_calibration(path)
-    sub = (doc.get("kinds") or {}).get(kind)
-    presets = sub.get("presets", {}) if isinstance(sub, dict) else doc.get("presets", {}) if kind == "point" else {}
+    presets = _kind(kind, path).get("presets") or {}
     return {name: p for name, p in presets.items()
             if name in PRESETS and isinstance(p, dict) and isinstance(p.get("expected_minutes"), (int, float))}
 
