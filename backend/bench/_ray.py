@@ -8,7 +8,8 @@ driver first, into ``--out``: on a cluster of several machines that folder must 
 same path on every node). Without ADDRESS a local Ray instance is started (or the one already
 initialised in this process is used).
 
-Ray is optional: it is not in requirements.txt nor in the extension; ``pip install ray``."""
+Ray is optional: it is not in backend/requirements.txt nor in the extension (``pip install ray``);
+the repository's requirements.txt installs it for the test of this path."""
 
 from __future__ import annotations
 
