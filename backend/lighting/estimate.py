@@ -4,9 +4,7 @@ The map is a low-resolution equirectangular HDR image in Blender's World convent
 one ``capture.model.Environment`` documents, rotation 0), log-parameterised (texel =
 exp(latent), so it stays positive) with a smoothness prior (squared differences of
 neighbouring latents, longitude wrapping), coarse to fine (``RESOLUTIONS``: one step per
-material stage reached, and one per geometry level the stage prepares: finer levels resolve
-shading a coarse map blurs, and a surface fitted under a blurred map bends to make the
-difference). It starts from what the frames show of the background outside the
+material stage reached). It starts from what the frames show of the background outside the
 masks (the environment seen directly along the camera rays), else a uniform grey, at the
 level at which the convention's albedo renders the object as bright as the frames show it:
 a background is often a table or a wall, far darker than the lamps that light the object,
@@ -196,11 +194,10 @@ class EstimatedEnvironment:
         """Solid-angle weighted mean radiance per channel (the map's average over the sphere)."""
         return [float(x) for x in sphere_mean(self.pixels)]
 
-    def at_stage(self, stage: str, next_level: int = 0) -> bool:
-        """Coarse to fine: the resolution of the material stage about to run, or of the geometry
-        level ``next_level`` it prepares (``RESOLUTIONS[next_level]``), whichever is finer, and
-        never coarser than before; True when it changed."""
-        level = max(self.level, STAGE_RESOLUTION.get(stage, 0), min(next_level, len(RESOLUTIONS) - 1))
+    def at_stage(self, stage: str) -> bool:
+        """Coarse to fine: the resolution of the material stage about to run (never coarser);
+        True when it changed."""
+        level = max(self.level, STAGE_RESOLUTION.get(stage, 0))
         if level == self.level and self.resolution == RESOLUTIONS[level]:
             return False
         self.level = level

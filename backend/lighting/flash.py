@@ -110,7 +110,7 @@ class Flash:
     def environment(self) -> None:
         """No environment: the flash is the only light."""
 
-    def at_stage(self, stage: str, next_level: int = 0) -> bool:
+    def at_stage(self, stage: str) -> bool:
         return False  # one parameter at every stage
 
     def normalise(self, material) -> float:

@@ -142,8 +142,7 @@ class Appearance:
         stage_before = self.driver.stage
         self.emit("stage", stage=f"material:{stage_before}", level=level, faces=mesh.n_faces)
         if self.lighting is not None:
-            # coarse to fine: the stage's map resolution, or that of the level this cycle prepares
-            self.lighting.at_stage(stage_before, level + 1)
+            self.lighting.at_stage(stage_before)  # coarse to fine: the stage's map resolution
             self.capture.environment = self.lighting.environment()
         renderer = self._renderer(mesh, material, views, geometry=False)
         result = self.driver.cycle(renderer, [v.target for v in views], self._masks(views), material, self.emit,

@@ -54,16 +54,6 @@ def test_texel_directions_round_trip_and_upsample_wraps():
     assert up[:, -1, 0].mean() > 0.2 and up[:, 16, 0].max() == 0  # longitude wraps, the far side stays
 
 
-def test_map_resolution_follows_the_stage_or_the_level_it_prepares_and_never_coarsens(tmp_path):
-    env = estimate.EstimatedEnvironment(np.zeros((8, 16, 3), np.float32), tmp_path / "env.exr")
-    assert not env.at_stage("constant", 0) and env.resolution == (16, 8)
-    assert env.at_stage("constant", 1) and env.resolution == (32, 16)  # level 1 renders under 32x16
-    assert not env.at_stage("constant", 0) and env.resolution == (32, 16)  # never coarser again
-    assert env.at_stage("diffuse", 2) and env.resolution == (64, 32)  # level 2: the finest map
-    assert not env.at_stage("specular", 7) and env.resolution == (64, 32)  # levels past the last: the finest
-    assert np.allclose(env.latent, 0.0)  # upsampled, not changed
-
-
 def test_initial_map_is_the_background_seen_through_the_camera_rays(tmp_path):
     """Frames that show the environment directly (no object, empty masks) give back the map
     where the rays looked: the projection and the renderer's lookup agree."""
