@@ -152,7 +152,7 @@ class EstimatedEnvironment:
     history of its fit (``report``)."""
 
     smoothness: float = 0.02  # x mean squared difference of neighbouring latents
-    lr: float = 0.05  # Adam step on the latents
+    lr: float = 0.15  # Adam step on the latents: a sun some 20x the map's mean is 3 log units up
 
     def __init__(self, latent: np.ndarray, path: Path, source: str = "uniform", seen: float = 0.0,
                  background_scale: float = 1.0):

@@ -9,7 +9,9 @@ light-transport effects.
   specular lobe; re-checked after every re-mesh and when materials become spatially varying,
   and after every geometry level while the lobe is off (turned on, it restarts from neutral
   values and its constants are fitted).
-  ``all`` or a list forces them. Each decision is an ``effects`` event."""
+  ``all`` or a list forces them. Each decision is an ``effects`` event.
+- A fitted lighting (``--lighting estimate``/``flash``) gets constant-material cycles on the
+  initial mesh before any geometry step (``light_first``)."""
 
 from __future__ import annotations
 
@@ -30,6 +32,10 @@ from ..render.scene import RenderSettings, SceneRenderer
 from . import effect_costs
 from .objective import Objective
 from .stiffness import STIFF
+
+# a fitted lighting's cycles on the initial mesh, before any geometry step (``light_first``)
+LIGHT_FIRST_CYCLES = 3
+LIGHT_FIRST_GAIN = 0.01  # a cycle that lowers the loss by less than this share ends them
 
 
 def _emitters(capture: Capture) -> list[str]:
@@ -129,6 +135,29 @@ class Appearance:
 
     def _masks(self, views):
         return [v.mask for v in views] if all(v.mask is not None for v in views) else None
+
+    def light_first(self, mesh, material, views) -> dict | None:
+        """A fitted lighting (``--lighting estimate``/``flash``) is fitted on the initial mesh
+        before any geometry step: constant-material cycles, at most ``LIGHT_FIRST_CYCLES``,
+        until one gains less than ``LIGHT_FIRST_GAIN`` of the loss. Geometry steps under a light
+        that is still its first guess (a uniform map, a flash from the mean brightness) bend
+        the surface to make the shading the light does not give yet, and later levels do not
+        win that back (docs/notes/2026-11-28-estimated-lighting-levels.md). Returns the cycles'
+        losses and time for ``report.json`` ``init``, or None when there is nothing to fit."""
+        if self.lighting is None or self.driver is None:
+            return None
+        start, losses = time.perf_counter(), []
+        for _ in range(LIGHT_FIRST_CYCLES):
+            if self.driver.done or self.driver.stage != "constant":
+                break
+            result = self.material_cycle(mesh, material, views, level=0)
+            if result is None:
+                break
+            losses.append(result["loss"])
+            if len(losses) > 1 and losses[-1] > losses[-2] * (1 - LIGHT_FIRST_GAIN):
+                break
+        return {"cycles": len(losses), "losses": [round(x, 8) for x in losses],
+                "seconds": round(time.perf_counter() - start, 3)}
 
     def material_cycle(self, mesh, material, views, level: int) -> dict | None:
         """One stage of the material schedule on the current geometry."""

@@ -152,6 +152,7 @@ class Reconstruction:
         coarse = self.viewset.at(c.coarse_size)
         self.material = self.appearance.initial_material(s.mesh, coarse, given=self.material)
         s.material_kind = self.material.KIND
+        lit = self.appearance.light_first(s.mesh, self.material, coarse)
         self.appearance.decide(s.mesh, self.material, coarse, reason="initial mesh")
         self._choose_stiffness(coarse)
         s.budget = FaceBudget(s.mesh.n_faces, growth=c.face_growth)
@@ -165,6 +166,8 @@ class Reconstruction:
                   "seconds": round(time.perf_counter() - start, 3)}
         if self.truth is not None:
             s.init["metrics"] = self.metrics(s.mesh)
+        if lit is not None:
+            s.init["light_first"] = lit
         self.snapshot(loss=None)
 
     def _load_state(self) -> None:
