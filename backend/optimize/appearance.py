@@ -33,9 +33,7 @@ from . import effect_costs
 from .objective import Objective
 from .stiffness import STIFF
 
-# a fitted lighting's cycles on the initial mesh, before any geometry step (``light_first``)
-LIGHT_FIRST_CYCLES = 3
-LIGHT_FIRST_GAIN = 0.01  # a cycle that lowers the loss by less than this share ends them
+LIGHT_FIRST_CYCLES = 3  # a fitted lighting's most cycles on the initial mesh (``light_first``)
 
 
 def _emitters(capture: Capture) -> list[str]:
@@ -139,7 +137,8 @@ class Appearance:
     def light_first(self, mesh, material, views) -> dict | None:
         """A fitted lighting (``--lighting estimate``/``flash``) is fitted on the initial mesh
         before any geometry step: constant-material cycles, at most ``LIGHT_FIRST_CYCLES``,
-        until one gains less than ``LIGHT_FIRST_GAIN`` of the loss. Geometry steps under a light
+        while the schedule stays in its constant stage (it ends that stage when a cycle stops
+        improving: ``MaterialSchedule.min_improvement``). Geometry steps under a light
         that is still its first guess (a uniform map, a flash from the mean brightness) bend
         the surface to make the shading the light does not give yet, and later levels do not
         win that back (docs/notes/2026-11-28-estimated-lighting-levels.md). Returns the cycles'
@@ -147,15 +146,11 @@ class Appearance:
         if self.lighting is None or self.driver is None:
             return None
         start, losses = time.perf_counter(), []
-        for _ in range(LIGHT_FIRST_CYCLES):
-            if self.driver.done or self.driver.stage != "constant":
-                break
+        while len(losses) < LIGHT_FIRST_CYCLES and self.driver.stage == "constant":
             result = self.material_cycle(mesh, material, views, level=0)
             if result is None:
                 break
             losses.append(result["loss"])
-            if len(losses) > 1 and losses[-1] > losses[-2] * (1 - LIGHT_FIRST_GAIN):
-                break
         return {"cycles": len(losses), "losses": [round(x, 8) for x in losses],
                 "seconds": round(time.perf_counter() - start, 3)}
 
