@@ -206,9 +206,10 @@ def test_capture_without_light_estimates_it_by_default(dark_capture, tmp_path):
     # the map is fitted on the initial mesh before the surface moves (appearance.light_first)
     stages = [e["stage"] for e in log if e["event"] == "stage"]
     assert stages.index("material:constant") < stages.index("geometry")
-    first = json.loads((run / "report.json").read_text())["init"]["light_first"]
+    whole = json.loads((run / "report.json").read_text())
+    first = whole["init"]["light_first"]
     assert 1 <= first["cycles"] <= 3 and len(first["losses"]) == first["cycles"]
-    report = json.loads((run / "report.json").read_text())["lighting"]
+    report = whole["lighting"]
     assert report["model"].startswith("environment map") and "mean albedo" in report["scale_convention"]
     fitted = read_linear_rgb(run / "environment.exr")
     assert fitted.shape[:2][::-1] == tuple(report["resolution"])
