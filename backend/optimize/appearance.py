@@ -33,7 +33,6 @@ from . import effect_costs
 from .objective import Objective
 from .stiffness import STIFF
 
-LIGHT_FIRST_CYCLES = 3  # a fitted lighting's most cycles on the initial mesh (``light_first``)
 
 
 def _emitters(capture: Capture) -> list[str]:
@@ -136,7 +135,7 @@ class Appearance:
 
     def light_first(self, mesh, material, views) -> dict | None:
         """A fitted lighting (``--lighting estimate``/``flash``) is fitted on the initial mesh
-        before any geometry step: constant-material cycles, at most ``LIGHT_FIRST_CYCLES``,
+        before any geometry step: constant-material cycles, at most ``config.light_first_cycles``,
         while the schedule stays in its constant stage (it ends that stage when a cycle stops
         improving: ``MaterialSchedule.min_improvement``). Geometry steps under a light
         that is still its first guess (a uniform map, a flash from the mean brightness) bend
@@ -146,7 +145,7 @@ class Appearance:
         if self.lighting is None or self.driver is None:
             return None
         start, losses = time.perf_counter(), []
-        while len(losses) < LIGHT_FIRST_CYCLES and self.driver.stage == "constant":
+        while len(losses) < self.config.light_first_cycles and self.driver.stage == "constant":
             result = self.material_cycle(mesh, material, views, level=0)
             if result is None:
                 break

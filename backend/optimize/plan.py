@@ -22,7 +22,8 @@ level are the calibration run's (``presets.json``), else ``max_levels`` x ``leve
 With the staged material (the default) every level is followed by one material cycle of
 ``FitSettings.iterations`` one-view steps and a full-view evaluation, geometry convergence by
 ``FINAL_MATERIAL_CYCLES`` cycles four times as long, and ``POLISH_ROUNDS`` (at most
-``polish_rounds``) polish rounds of ``POLISH_STEPS`` steps, each with a refinement cycle.
+``polish_rounds``) polish rounds of ``POLISH_STEPS`` steps, each with a refinement cycle. A
+fitted lighting (``estimate``, ``flash``) adds ``light_first_cycles`` cycles before level 0.
 ``FIXED_SECONDS`` covers start, loading, initialisation and the effects decision. A time
 budget or an iteration cap cuts the prediction where the run would stop.
 
@@ -99,11 +100,7 @@ def fit(samples: list[tuple[float, float, float]]) -> tuple[float, float, float]
     comes out negative is dropped and the rest refitted). Fewer than three distinct points fit
     fewer terms."""
     p, f, t = (np.array(x, np.float64) for x in zip(*samples))
-    terms = [0, 1, 2]
-    if len(set(p.tolist())) < 2:
-        terms.remove(1)
-    if len(set(f.tolist())) < 2:
-        terms.remove(2)
+    terms = [0] + [i for i, x in ((1, p), (2, f)) if len(set(x.tolist())) >= 2]
     columns = np.stack([np.ones_like(p), p, f], 1)
     while True:
         coef = np.zeros(3)
@@ -139,8 +136,7 @@ def levels(config, entry: dict | None = None) -> tuple[list[LevelPlan], str]:
         per_level = min(c.level_iterations, max(c.min_level_iterations, round(entry["iterations"] / entry["levels"])))
         source = "calibration run: its levels and steps per level"
     budget = FaceBudget(c.initial_faces, growth=c.face_growth)
-    faces, out = c.initial_faces, []
-    total = 0
+    faces, out, total = c.initial_faces, [], 0
     for level in range(n):
         steps = per_level if c.iterations is None else max(0, min(per_level, c.iterations - total))
         if steps == 0:
@@ -208,6 +204,8 @@ def predict(name: str, config, costs: StepCosts, pixels_at, n_views: int, staged
         if staged:
             material += cycle_seconds(costs, p, lv.faces, n_views)
     polish = 0.0
+    if staged and plan and c.lighting in ("estimate", "flash"):  # the lighting first, on the initial mesh
+        material += c.light_first_cycles * cycle_seconds(costs, pixels_at(plan[0].size), plan[0].faces, n_views)
     if staged and plan:
         last = plan[-1]
         p = pixels_at(c.max_size)

@@ -82,6 +82,22 @@ def test_the_preset_event_carries_the_captures_prediction(capture, tmp_path):
     assert timed["max_depth"] == decided["max_depth"] and (timed["sppi"] > 0) == decided["shadows"]
 
 
+def test_a_fitted_lighting_is_charged_its_cycles_on_the_initial_mesh():
+    """``--lighting estimate``/``flash`` fit the light first (config.light_first_cycles constant-
+    material cycles at level 0's size and faces): the plan adds exactly those cycles."""
+    costs = plan.StepCosts([plan.Point(32, 1024, 500, 0.02, 0.01, 0.015), plan.Point(64, 4096, 500, 0.05, 0.02, 0.03),
+                            plan.Point(32, 1024, 4000, 0.03, 0.012, 0.02), plan.Point(64, 4096, 4000, 0.07, 0.03, 0.04)])
+    pixels_at = lambda size: size * size  # noqa: E731
+    captured = ReconstructConfig(**PRESETS["draft"], material="staged")
+    estimated = ReconstructConfig(**PRESETS["draft"], material="staged", lighting="estimate")
+    a = plan.predict("draft", captured, costs, pixels_at, 8, staged=True)
+    b = plan.predict("draft", estimated, costs, pixels_at, 8, staged=True)
+    first = a.levels[0]
+    expected = estimated.light_first_cycles * plan.cycle_seconds(costs, pixels_at(first.size), first.faces, 8)
+    assert b.material_s - a.material_s == pytest.approx(expected) and expected > 0
+    assert b.geometry_s == pytest.approx(a.geometry_s)
+
+
 def test_shadow_gradients_are_charged_at_the_samples_a_level_keeps(tmp_path):
     """Under an environment map with shadow gradients the plan times the geometry step with and
     without them and charges the count a level keeps (the arithmetic: test_shadow_samples.py)."""
