@@ -26,7 +26,8 @@ EFFECTS = (
 )
 LIGHTING = (
     ("ESTIMATE", "Estimate", "Fit an environment map with the material (no HDR capture needed); the World shows "
-     "it after the run. Albedo and light share one scale: the object's mean albedo is set to 0.5"),
+     "it after the run. Albedo and light share one scale and colour: the map is made white on average and the "
+     "object's mean albedo 0.5, so the albedo carries the object's colour"),
     ("CAPTURED", "Captured HDR", "The imported environment map (Import Environment Map) or the capture's own lights"),
     ("FLASH", "Camera flash", "A point light at every camera (a phone's flash, DTU-like captures), its intensity "
      "fitted with the material; the capture's own lights are replaced. The object's mean albedo is set to 0.5"),

@@ -126,7 +126,7 @@ class SFT_PT_reconstruct(_Panel, bpy.types.Panel):
         col.prop(sft, "effects")
         col.prop(sft, "lighting")
         if sft.lighting == "ESTIMATE":
-            col.label(text="Lighting estimated with the material (mean albedo 0.5 sets the scale)", icon="WORLD_DATA")
+            col.label(text="Lighting estimated with the material (white on average, mean albedo 0.5)", icon="WORLD_DATA")
         elif sft.lighting == "FLASH":
             col.label(text="A flash at each camera, intensity fitted (mean albedo 0.5 sets the scale)", icon="LIGHT_POINT")
         elif sft.env_path:

@@ -12,9 +12,10 @@ and an albedo bounded by 1 cannot make up the difference while the map climbs to
 
 The material stages fit it by Adam jointly with the material latents (``EnvironmentFit``,
 the ``lighting`` argument of ``material.stages.fit``); geometry steps render with the
-current map and leave it fixed. Albedo x light has one free scale: after each stage the map
-and the material are rescaled together so that the object's mean albedo is
-``ALBEDO_CONVENTION`` (backend.lighting.convention; the renders do not change)."""
+current map and leave it fixed. Albedo x light has one free scale and colour: after each
+stage the map and the material are rescaled together so that the map is white on average and
+the object's mean albedo is ``ALBEDO_CONVENTION`` (backend.lighting.convention; the diffuse
+renders do not change)."""
 
 from __future__ import annotations
 
@@ -25,11 +26,11 @@ from PIL import Image
 
 from ..capture.images import read_linear_rgb, read_mask, write_image
 from ..capture.model import Capture, Environment
-from .convention import ALBEDO_CONVENTION, describe, normalise_albedo
+from .convention import ALBEDO_CONVENTION, describe, neutral_colour, normalise_albedo
 
 RESOLUTIONS = ((16, 8), (32, 16), (64, 32))  # (width, height): constant, diffuse, specular stage
 STAGE_RESOLUTION = {"constant": 0, "diffuse": 1, "specular": 2, "done": 2}
-CONVENTION = describe("map")
+CONVENTION = describe("map", colour=True)
 INIT_SIZE = 64  # long side of the frames read for the initial map
 BACKGROUND_LEVEL = 1e-4  # a background pixel this dark is black (a premultiplied or masked frame)
 BACKGROUND_SHARE = 0.05  # a frame whose background is black but for this share shows none (edge leaks)
@@ -162,6 +163,7 @@ class EstimatedEnvironment:
         self.background_scale = background_scale  # the level matching of ``initial_map``
         self.level = 0
         self.scales: list[float] = []  # the convention's rescaling factors, one per stage
+        self.colours: list[list[float]] = []  # its per-channel albedo factors (the map made white)
 
     @classmethod
     def initial(cls, capture: Capture, path: Path) -> "EstimatedEnvironment":
@@ -208,14 +210,17 @@ class EstimatedEnvironment:
         self.latent = self.latent + np.float32(np.log(factor))
 
     def normalise(self, material) -> float:
-        """The scale convention: map and material rescaled together so the mean albedo is
-        ``ALBEDO_CONVENTION`` (specular scaled with the albedo; renders unchanged while no
-        value clips at 1). A fitted light factor is folded into the map. Returns the factor the
-        albedo was multiplied by."""
+        """The convention: map and material rescaled together so the map's mean colour is
+        white (albedo x k per channel) and the mean albedo is ``ALBEDO_CONVENTION`` (specular
+        scaled with the albedo; diffuse renders unchanged while no value clips at 1). A fitted
+        light factor is folded into the map. Returns the factor of the scale step."""
         light = float(getattr(material, "light_factor", 1.0) or 1.0)
         if light != 1.0:
             self.rescale(light)
             material.light_factor = 1.0
+        k = neutral_colour(material, sphere_mean(self.pixels))
+        self.latent = (self.latent - np.log(k)[None, None, :]).astype(np.float32)
+        self.colours.append([round(float(x), 6) for x in k])
         s = normalise_albedo(material)
         self.rescale(1.0 / s)
         self.scales.append(round(s, 6))
@@ -244,7 +249,7 @@ class EstimatedEnvironment:
                 "parameterisation": "texel = exp(latent), smoothness prior on neighbouring latents",
                 "smoothness": self.smoothness, "initial": self.source, "background_coverage": round(self.seen, 4),
                 "background_scale": round(self.background_scale, 6),
-                "scale_convention": CONVENTION, "albedo_scales": self.scales,
+                "scale_convention": CONVENTION, "albedo_scales": self.scales, "albedo_colours": self.colours,
                 "mean_radiance": [round(x, 6) for x in self.mean_radiance()]}
 
     def event(self) -> dict:
@@ -252,7 +257,8 @@ class EstimatedEnvironment:
         report = self.report()
         return {"model": "estimate", "resolution": report["resolution"], "initial": report["initial"],
                 "scale_convention": report["scale_convention"], "mean_radiance": report["mean_radiance"],
-                "albedo_scale": self.scales[-1] if self.scales else None}
+                "albedo_scale": self.scales[-1] if self.scales else None,
+                "albedo_colour": self.colours[-1] if self.colours else None}
 
     def fit(self) -> "EnvironmentFit":
         return EnvironmentFit(self)

@@ -13,7 +13,7 @@ of predicted renders of the truth capture's held-out (or relit, ``--views relit`
 For a run folder the final display mesh is rendered at the truth's held-out views under the
 lighting the run fitted (backend.lighting.fitted: the captured lights x its light factor, its
 estimated map, or its flash) and at the relit views under their own map (a flash or estimate
-run's albedo first brought from the scale convention's units to the truth's:
+run's albedo first brought from the convention's units and colour to the truth's:
 ``relit_albedo_scale``), and its material, carried onto the true surface, at the held-out
 views (``true geometry``: the PSNR the same material reaches on perfect geometry, so the
 difference is the geometry's). When the run fitted a specular lobe (its display mesh carries
@@ -168,7 +168,7 @@ def _run_view_metrics(report: dict, run: Path, capture, gt: Mesh, samples: int, 
             views = fitted.light_views(truth_views, lighting)
         else:  # a light the run never saw: its own lights, the run's albedo in the truth's units
             views, scale = truth_views, relit_albedo_scale(display, gt, lighting, samples, seed)
-            if scale is not None:  # flash/estimate: albedo (and specular) x a, undoing the convention's scale
+            if scale is not None:  # flash/estimate: albedo x a (specular x mean a), undoing the convention
                 shown = scaled_material(display, scale)
         out = run / "renders" / name
         for frame, image in render_views(shown, views).items():
@@ -189,28 +189,29 @@ def _run_view_metrics(report: dict, run: Path, capture, gt: Mesh, samples: int, 
                                                     lighting=scores["lighting"])
 
 
-def relit_albedo_scale(display: Mesh, gt: Mesh, lighting, samples: int, seed: int) -> float | None:
-    """The factor a that brings a flash or estimate run's albedo (mean 0.5 by the scale
-    convention, backend.lighting.convention) to the truth's units, so that its relit views
-    compare with a captured run's: mean true over mean predicted albedo at corresponding
-    surface points, one scalar as the convention's one free scale (the colour stays the
-    run's). None for a captured run (its albedo is in the light's units already) or when
+def relit_albedo_scale(display: Mesh, gt: Mesh, lighting, samples: int, seed: int) -> list[float] | None:
+    """The factors a (one per channel) that bring a flash or estimate run's albedo (mean 0.5
+    and a white light by the convention, backend.lighting.convention) to the truth's units
+    and colour, so that its relit views compare with a captured run's: mean true over mean
+    predicted albedo per channel at corresponding surface points, the convention's free scale
+    and colour. None for a captured run (its albedo is in the light's units already) or when
     either mesh has no albedo (the relit views are then scored unscaled)."""
     if not lighting.convention or display.vertex_colors is None or gt.vertex_colors is None:
         return None
     pa, ga = geo.corresponding_albedo(display, gt, samples, seed)
-    mean = float(np.mean(pa))
-    return round(float(np.mean(ga)) / mean, 6) if mean > 1e-6 else None
+    mean = np.mean(pa, 0)
+    return [round(float(g) / float(m), 6) for g, m in zip(np.mean(ga, 0), mean)] if mean.min() > 1e-6 else None
 
 
-def scaled_material(mesh: Mesh, factor: float) -> Mesh:
-    """A copy of a display mesh with albedo and specular x ``factor`` (kept in [0, 1]), as
-    the scale convention rescales them."""
+def scaled_material(mesh: Mesh, factor) -> Mesh:
+    """A copy of a display mesh with albedo x ``factor`` (a scalar or one per channel) and
+    specular x its mean (kept in [0, 1]), as the convention rescales them."""
     out = mesh.copy()
-    out.vertex_colors = np.clip(mesh.vertex_colors * np.float32(factor), 0, 1).astype(mesh.vertex_colors.dtype)
+    f = np.asarray(factor, np.float32)
+    out.vertex_colors = np.clip(mesh.vertex_colors * f, 0, 1).astype(mesh.vertex_colors.dtype)
     if "specular" in mesh.attributes:
         spec = mesh.attributes["specular"]
-        out.attributes = dict(mesh.attributes, specular=np.clip(spec * np.float32(factor), 0, 1).astype(spec.dtype))
+        out.attributes = dict(mesh.attributes, specular=np.clip(spec * f.mean(), 0, 1).astype(spec.dtype))
     return out
 
 
@@ -283,7 +284,8 @@ def table(report: dict) -> str:
         rows.append(("albedo_rmse", f"{report['albedo']['rmse']:.4f}",
                      f"{report['albedo']['rmse_scaled']:.4f} after per-channel scale"))
     for im in ([report["images"]] if "images" in report else []) + list(report.get("views", {}).values()):
-        scaled = f"; albedo x {im['albedo_scale']:.3g} (scale convention)" if im.get("albedo_scale") else ""
+        a = im.get("albedo_scale")
+        scaled = f"; albedo x ({', '.join(f'{x:.3g}' for x in np.atleast_1d(a))}) (convention)" if a else ""
         rows.append((f"psnr {im['set']}", f"{im['psnr']:.2f} dB", f"{len(im['views'])} views, sRGB{scaled}"))
         rows.append((f"ssim {im['set']}", f"{im['ssim']:.4f}", ""))
         for name, scores in im.get("components", {}).items():
