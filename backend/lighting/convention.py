@@ -10,11 +10,13 @@ channels) is ``ALBEDO_CONVENTION``; the renders do not change while no value cli
 
 The product is free per colour channel too: a bluer albedo under a yellower light renders
 the same diffuse image. A flash is white (one scalar intensity). An estimated map is made
-white on average (``neutral_colour``: its solid-angle mean has equal channels), as a
-white-balanced camera sees its light, so the albedo carries the object's colour. Without it
-the split is wherever the fit stopped from its first guess, and an albedo carried under
-another light takes the old light's colour with it. The diffuse image does not change; the
-specular lobe, one scalar, keeps the light's colour, which the next stage fits again."""
+white on average before each stage (``neutral_colour``: its solid-angle mean has equal
+channels), as a white-balanced camera sees its light, so the albedo carries the object's
+colour. Without it the split is wherever the fit stopped from its first guess, and an albedo
+carried under another light takes the old light's colour with it. The diffuse image does not
+change; the specular lobe, one scalar, takes the light's colour, so the step comes before a
+stage, whose fit settles the highlights again (made after a stage, the step left the final
+highlights off the fit: docs/results.md, "The colour of the light")."""
 
 from __future__ import annotations
 

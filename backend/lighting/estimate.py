@@ -12,10 +12,10 @@ and an albedo bounded by 1 cannot make up the difference while the map climbs to
 
 The material stages fit it by Adam jointly with the material latents (``EnvironmentFit``,
 the ``lighting`` argument of ``material.stages.fit``); geometry steps render with the
-current map and leave it fixed. Albedo x light has one free scale and colour: after each
-stage the map and the material are rescaled together so that the map is white on average and
-the object's mean albedo is ``ALBEDO_CONVENTION`` (backend.lighting.convention; the diffuse
-renders do not change)."""
+current map and leave it fixed. Albedo x light has one free scale and colour: before each
+stage the map is made white on average, the albedo taking its colour (``balance``), and after
+it map and material are rescaled together so that the object's mean albedo is
+``ALBEDO_CONVENTION`` (backend.lighting.convention; the renders do not change)."""
 
 from __future__ import annotations
 
@@ -163,7 +163,7 @@ class EstimatedEnvironment:
         self.background_scale = background_scale  # the level matching of ``initial_map``
         self.level = 0
         self.scales: list[float] = []  # the convention's rescaling factors, one per stage
-        self.colours: list[list[float]] = []  # its per-channel albedo factors (the map made white)
+        self.colours: list[list[float]] = []  # per-channel albedo factors that made the map white
 
     @classmethod
     def initial(cls, capture: Capture, path: Path) -> "EstimatedEnvironment":
@@ -209,18 +209,23 @@ class EstimatedEnvironment:
     def rescale(self, factor: float) -> None:
         self.latent = self.latent + np.float32(np.log(factor))
 
+    def balance(self, material) -> None:
+        """The colour half of the convention, before a stage: the map made white on average,
+        the albedo x k per channel. The diffuse image does not change; the specular lobe's colour
+        does, and the stage about to run fits it again, so a run ends on renders its fit chose."""
+        k = neutral_colour(material, sphere_mean(self.pixels))
+        self.latent = (self.latent - np.log(k)[None, None, :]).astype(np.float32)
+        self.colours.append([round(float(x), 6) for x in k])
+
     def normalise(self, material) -> float:
-        """The convention: map and material rescaled together so the map's mean colour is
-        white (albedo x k per channel) and the mean albedo is ``ALBEDO_CONVENTION`` (specular
-        scaled with the albedo; diffuse renders unchanged while no value clips at 1). A fitted
-        light factor is folded into the map. Returns the factor of the scale step."""
+        """The scale convention, after a stage: map and material rescaled together so the mean
+        albedo is ``ALBEDO_CONVENTION`` (specular scaled with the albedo; renders unchanged
+        while no value clips at 1). A fitted light factor is folded into the map. Returns the
+        factor the albedo was multiplied by."""
         light = float(getattr(material, "light_factor", 1.0) or 1.0)
         if light != 1.0:
             self.rescale(light)
             material.light_factor = 1.0
-        k = neutral_colour(material, sphere_mean(self.pixels))
-        self.latent = (self.latent - np.log(k)[None, None, :]).astype(np.float32)
-        self.colours.append([round(float(x), 6) for x in k])
         s = normalise_albedo(material)
         self.rescale(1.0 / s)
         self.scales.append(round(s, 6))

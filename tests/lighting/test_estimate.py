@@ -162,8 +162,8 @@ def test_normalise_keeps_renders_and_sets_mean_albedo():
 
 
 def test_normalise_makes_the_map_white_and_keeps_the_diffuse_renders():
-    """The colour half of the convention: a yellow map and a grey albedo become a white map and
-    a yellow albedo, and the diffuse image (real renders) stays the same."""
+    """The convention: a yellow map and a grey albedo become a white map and a yellow albedo of
+    mean 0.5, and the diffuse image (real renders) stays the same."""
     mesh = procedural.blob(2)
     cams = layout.orbit_cameras(layout.fibonacci_sphere(3), np.zeros(3), 0.6, 24)
     material = MeshColorMaterial(mesh, 1)
@@ -178,7 +178,8 @@ def test_normalise_makes_the_map_white_and_keeps_the_diffuse_renders():
         return np.stack([r.render_numpy(v, seed=3) for v in range(len(cams))])
 
     before = renders()
-    fitted.normalise(material)
+    fitted.balance(material)  # before a stage: the colour
+    fitted.normalise(material)  # after it: the scale
     white = estimate.sphere_mean(fitted.pixels)
     assert white == pytest.approx(np.full(3, white.mean()), rel=1e-4)
     albedo = material.values("albedo").mean(0)
