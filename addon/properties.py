@@ -29,6 +29,9 @@ LIGHTING = (
      "it after the run. Albedo and light share one scale and colour: the map is made white on average and the "
      "object's mean albedo 0.5, so the albedo carries the object's colour"),
     ("CAPTURED", "Captured HDR", "The imported environment map (Import Environment Map) or the capture's own lights"),
+    ("RIG", "Estimate, on the camera", "Fit an environment map fixed to the camera instead of the world "
+     "(lamps on the camera rig, as in DTU-like studios: the light turns with every view); the World is left "
+     "as it is, the map stays in the run folder"),
     ("FLASH", "Camera flash", "A point light at every camera (a phone's flash, DTU-like captures), its intensity "
      "fitted with the material; the capture's own lights are replaced. The object's mean albedo is set to 0.5"),
 )

@@ -48,6 +48,8 @@ def method_args(sft, init_mesh: Path | None = None) -> list[str]:
     args += ["--effects", sft.effects.lower()]
     if sft.lighting == "ESTIMATE":
         args += ["--lighting", "estimate"]
+    elif sft.lighting == "RIG":
+        args += ["--lighting", "rig"]
     elif sft.lighting == "FLASH":
         args += ["--lighting", "flash"]
     elif sft.env_path:
@@ -140,7 +142,10 @@ class _ReconstructModal(JobModal):
 
 
 def _load_estimated_lighting(context, run_dir) -> str:
-    """The run's estimated environment (``--lighting estimate``) into the World; a note for the report."""
+    """The run's estimated environment (``--lighting estimate``) into the World; a note for the report.
+    A map fixed to the camera (``rig``) has no place in a World: it stays in the run folder."""
+    if getattr(context.scene.sft, "lighting", "") == "RIG":
+        return "; lighting fitted on the camera rig (environment.exr in the run folder; the World is unchanged)"
     try:
         return "; World lit by the estimated environment" if world.load_estimated_environment(context.scene,
                                                                                              run_dir) else ""

@@ -84,7 +84,12 @@ class Environment:
     Direction d (world, Z up) looks up the image at u = 0.5 - atan2(d'.y, d'.x) / 2pi,
     v = acos(d'.z) / pi (v = 0 is the top row), where d' = Rz(rotation_z_deg) d, which is
     what a Mapping node (Point, rotation Z) between Generated coordinates and the texture
-    does. Radiance is the pixel value times ``strength``."""
+    does. Radiance is the pixel value times ``strength``.
+
+    ``frame`` "camera": the map is fixed to each view's camera instead of the world (lamps on
+    the camera rig; ``--lighting rig``). d is then the direction in the camera's rig frame:
+    x toward the camera (its GL +z), y its right (+x), z its up (+y), so the map's centre
+    column at the horizon is the light coming from the camera."""
 
     path: Path
     strength: float = 1.0
@@ -93,10 +98,19 @@ class Environment:
     # the map's pixels held in memory (H, W, 3), read instead of ``path`` (a map being fitted:
     # backend.lighting.estimate; ``path`` is where it is written)
     pixels: np.ndarray | None = field(default=None, repr=False, compare=False)
+    frame: str = "world"  # or "camera": fixed to each view's camera (see above)
 
     def scaled(self, factor: float) -> "Environment":
         """The same map ``factor`` times as bright (a fitted light factor applied)."""
-        return Environment(self.path, self.strength * factor, self.rotation_z_deg, self.provenance, self.pixels)
+        return Environment(self.path, self.strength * factor, self.rotation_z_deg, self.provenance, self.pixels,
+                           self.frame)
+
+    @staticmethod
+    def rig_axes(camera_to_world: np.ndarray) -> np.ndarray:
+        """(3, 3) whose columns are the rig frame's x, y, z in world coordinates: the camera's
+        GL +z (toward the camera), +x (right) and +y (up)."""
+        r = np.asarray(camera_to_world, np.float64)[:3, :3]
+        return np.stack([r[:, 2], r[:, 0], r[:, 1]], 1)
 
     def to_json(self, root: Path) -> dict:
         out = {"path": _rel(self.path, root), "strength": self.strength, "rotation_z_deg": self.rotation_z_deg}

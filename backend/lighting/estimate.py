@@ -15,7 +15,12 @@ the ``lighting`` argument of ``material.stages.fit``); geometry steps render wit
 current map and leave it fixed. Albedo x light has one free scale and colour: before each
 stage the map is made white on average, the albedo taking its colour (``balance``), and after
 it map and material are rescaled together so that the object's mean albedo is
-``ALBEDO_CONVENTION`` (backend.lighting.convention; the renders do not change)."""
+``ALBEDO_CONVENTION`` (backend.lighting.convention; the renders do not change).
+
+``--lighting rig`` fits the same map fixed to each view's camera instead of the world
+(``Environment.frame`` "camera": lamps on the camera rig, as in DTU-like studio captures,
+where the light turns with the view); it starts uniform, since the background the frames show
+is the world's, not the rig's."""
 
 from __future__ import annotations
 
@@ -102,7 +107,8 @@ def sphere_mean(pixels: np.ndarray) -> np.ndarray:
     return (pixels * weight).sum((0, 1)) / (weight.sum() * w)
 
 
-def initial_map(capture: Capture, width: int, height: int) -> tuple[np.ndarray, str, float, float]:
+def initial_map(capture: Capture, width: int, height: int,
+                background: bool = True) -> tuple[np.ndarray, str, float, float]:
     """The starting map (height, width, 3), where it came from ("background" or "uniform"), the
     share of texels the background showed and the factor the background was scaled by.
 
@@ -110,8 +116,11 @@ def initial_map(capture: Capture, width: int, height: int) -> tuple[np.ndarray, 
     so under a uniform map, less where it shades itself), so the map's solid-angle mean
     luminance is set to the object's mean brightness / ``ALBEDO_CONVENTION``; the background
     keeps its pattern and colour. Without object pixels the background keeps its level (1) and
-    the grey is 0.5. Unseen texels take the mean of the seen ones."""
+    the grey is 0.5. Unseen texels take the mean of the seen ones. ``background`` False: the
+    uniform grey at that level whatever the frames show."""
     dirs, rgb, object_mean = background_samples(capture)
+    if not background:
+        dirs = dirs[:0]
     level = 0.25 if object_mean is None else max(float(np.mean(object_mean)), 1e-3)
     grey = np.full(3, level / ALBEDO_CONVENTION)
     if len(dirs) == 0:
@@ -156,26 +165,27 @@ class EstimatedEnvironment:
     lr: float = 0.15  # Adam step on the latents: a sun some 20x the map's mean is 3 log units up
 
     def __init__(self, latent: np.ndarray, path: Path, source: str = "uniform", seen: float = 0.0,
-                 background_scale: float = 1.0):
+                 background_scale: float = 1.0, frame: str = "world"):
         self.latent = np.asarray(latent, np.float32)
         self.path = Path(path)
         self.source, self.seen = source, seen
         self.background_scale = background_scale  # the level matching of ``initial_map``
         self.level = 0
+        self.frame = frame  # "world", or "camera": fixed to each view's camera (--lighting rig)
         self.scales: list[float] = []  # the convention's rescaling factors, one per stage
         self.colours: list[list[float]] = []  # per-channel albedo factors that made the map white
 
     @classmethod
-    def initial(cls, capture: Capture, path: Path) -> "EstimatedEnvironment":
+    def initial(cls, capture: Capture, path: Path, frame: str = "world") -> "EstimatedEnvironment":
         width, height = RESOLUTIONS[0]
-        pixels, source, seen, scale = initial_map(capture, width, height)
-        return cls(np.log(pixels), path, source, seen, scale)
+        pixels, source, seen, scale = initial_map(capture, width, height, background=frame == "world")
+        return cls(np.log(pixels), path, source, seen, scale, frame)
 
     @classmethod
-    def load(cls, path: Path, level: int = 0) -> "EstimatedEnvironment":
+    def load(cls, path: Path, level: int = 0, frame: str = "world") -> "EstimatedEnvironment":
         """The map a resumed run wrote (RUN/environment.exr)."""
         pixels = read_linear_rgb(path)
-        out = cls(np.log(np.maximum(pixels, 1e-8)), path, "resumed")
+        out = cls(np.log(np.maximum(pixels, 1e-8)), path, "resumed", frame=frame)
         out.level = level
         return out
 
@@ -190,7 +200,7 @@ class EstimatedEnvironment:
 
     def environment(self) -> Environment:
         """The capture's lighting now: the current map (in memory), strength 1, rotation 0."""
-        return Environment(self.path, 1.0, 0.0, "estimated", pixels=self.pixels)
+        return Environment(self.path, 1.0, 0.0, "estimated", pixels=self.pixels, frame=self.frame)
 
     def mean_radiance(self) -> list[float]:
         """Solid-angle weighted mean radiance per channel (the map's average over the sphere)."""
@@ -252,7 +262,7 @@ class EstimatedEnvironment:
         width, height = self.resolution
         return {"model": "environment map (estimated)", "file": FILENAME, "resolution": [width, height],
                 "parameterisation": "texel = exp(latent), smoothness prior on neighbouring latents",
-                "smoothness": self.smoothness, "initial": self.source, "background_coverage": round(self.seen, 4),
+                "smoothness": self.smoothness, "frame": self.frame, "initial": self.source, "background_coverage": round(self.seen, 4),
                 "background_scale": round(self.background_scale, 6),
                 "scale_convention": CONVENTION, "albedo_scales": self.scales, "albedo_colours": self.colours,
                 "mean_radiance": [round(x, 6) for x in self.mean_radiance()]}
@@ -260,7 +270,7 @@ class EstimatedEnvironment:
     def event(self) -> dict:
         """The ``lighting`` event's fields (docs/protocol.md)."""
         report = self.report()
-        return {"model": "estimate", "resolution": report["resolution"], "initial": report["initial"],
+        return {"model": "estimate", "frame": self.frame, "resolution": report["resolution"], "initial": report["initial"],
                 "scale_convention": report["scale_convention"], "mean_radiance": report["mean_radiance"],
                 "albedo_scale": self.scales[-1] if self.scales else None,
                 "albedo_colour": self.colours[-1] if self.colours else None}

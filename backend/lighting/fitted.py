@@ -54,7 +54,8 @@ class RunLighting:
             return f"the run's fitted flash: {value} W/sr at each view's camera"
         factor = "" if self.light_factor == 1.0 else f" x light factor {self.light_factor:.4g}"
         if self.model == "estimate":
-            return f"the run's fitted environment map ({estimate.FILENAME}){factor}"
+            rig = ", fixed to the camera" if self.environment is not None and self.environment.frame == "camera" else ""
+            return f"the run's fitted environment map ({estimate.FILENAME}{rig}){factor}"
         return f"the views' own lights{factor}"
 
 
@@ -93,7 +94,8 @@ def from_run(folder: str | Path) -> RunLighting:
         path = folder / str(lighting.get("file") or estimate.FILENAME)
         require(path.is_file(), path, "the run's estimated environment map is missing",
                 "re-run or resume the reconstruction (it writes the map with every snapshot)")
-        return RunLighting("estimate", Environment(path, 1.0, 0.0, "estimated"), light_factor=factor)
+        frame = "camera" if lighting.get("frame") == "camera" else "world"
+        return RunLighting("estimate", Environment(path, 1.0, 0.0, "estimated", frame=frame), light_factor=factor)
     if model != "captured":
         raise InputError(folder / "report.json", f"unknown lighting model '{model}'",
                          f"a run's report names one of {', '.join(MODELS)}")

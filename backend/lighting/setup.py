@@ -5,6 +5,8 @@
 - ``estimate``: the environment is fitted with the material (backend.lighting.estimate);
   a captured map is withheld (point lights stay). The default when the capture has no light
   and no ``--env`` is given.
+- ``rig``: the same fitted map, fixed to each view's camera instead of the world (lamps on
+  the camera rig, DTU-like studios: the light turns with the view).
 - ``flash``: a point light at every camera centre, its intensity fitted with the material
   (backend.lighting.flash); the capture's own lights are replaced (placed here at the
   nominal intensity 1 until the run's initial estimate) and a captured map is withheld.
@@ -20,9 +22,11 @@ from ..capture.validate import validate_environment
 from ..errors import InputError, require
 from . import flash
 
-MODES = ("captured", "estimate", "flash", "none")
+MODES = ("captured", "estimate", "rig", "flash", "none")
+ESTIMATED = ("estimate", "rig")  # an environment map fitted with the material (world- or camera-fixed)
 HELP = ("the lighting: 'captured' (the capture's environment map and point lights, or --env), 'estimate' (an "
         "environment map fitted with the material, written as RUN/environment.exr; a captured map is withheld), "
+        "'rig' (the same map fixed to the camera: lamps on the camera rig, as in DTU-like studios), "
         "'flash' (a point light at every camera, e.g. a phone's flash, its intensity fitted with the material; "
         "the capture's own lights are replaced) or 'none' (no estimate: a capture without light is an error). "
         "Default: estimate when the capture has no light and no --env is given, else captured")
@@ -43,9 +47,9 @@ def resolve_lighting(capture: Capture | None, mode: str | None, env: str | None 
     require(mode is None or mode in MODES, None, f"unknown --lighting {mode}", f"give one of {', '.join(MODES)}")
     has_light = video_light if capture is None else (capture.environment is not None or capture.has_point_lights)
     mode = mode or default_mode(has_light, env)
-    if mode == "estimate":
-        require(env is None, None, "--env gives the lighting and --lighting estimate fits it: give one of them",
-                "drop --env to estimate the lighting, or --lighting estimate to use the map")
+    if mode in ESTIMATED:
+        require(env is None, None, f"--env gives the lighting and --lighting {mode} fits it: give one of them",
+                f"drop --env to estimate the lighting, or --lighting {mode} to use the map")
         require(strength is None, None, "--env-strength needs --env", "drop --env-strength")
         if capture is not None:
             capture.environment = None  # withheld: the map is fitted

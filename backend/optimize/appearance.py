@@ -24,6 +24,7 @@ from ..errors import InputError
 from ..lighting.estimate import FILENAME as ESTIMATED_MAP
 from ..lighting.estimate import EstimatedEnvironment
 from ..lighting.flash import Flash
+from ..lighting.setup import ESTIMATED
 from ..material import factory
 from ..material.driver import MaterialDriver
 from ..material.export import write_glb
@@ -61,17 +62,17 @@ class Appearance:
         the frames show of the background, or the map a resumed run wrote to ``folder``).
         ``--lighting flash``: every frame is lit by a flash at its camera, at the intensity the
         frames suggest (a resumed run's comes back with ``restore``)."""
-        if self.config.lighting == "estimate":
-            path = folder / ESTIMATED_MAP
-            self.lighting = (EstimatedEnvironment.load(path) if resume and path.is_file()
-                             else EstimatedEnvironment.initial(self.capture, path))
+        if self.config.lighting in ESTIMATED:
+            path, frame = folder / ESTIMATED_MAP, "camera" if self.config.lighting == "rig" else "world"
+            self.lighting = (EstimatedEnvironment.load(path, frame=frame) if resume and path.is_file()
+                             else EstimatedEnvironment.initial(self.capture, path, frame))
             self.capture.environment = self.lighting.environment()
         elif self.config.lighting == "flash":
             self.lighting = Flash.initial(self.capture)
         else:
             return
         if self.driver is None:
-            what = "map" if self.config.lighting == "estimate" else "flash intensity"
+            what = "map" if self.config.lighting in ESTIMATED else "flash intensity"
             self.emit("warning", message=f"--lighting {self.config.lighting} fits the {what} in the material "
                                          f"stages of --material staged: this run keeps the initial {what}")
         self._lighting_event("initial")

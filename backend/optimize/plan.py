@@ -204,7 +204,7 @@ def predict(name: str, config, costs: StepCosts, pixels_at, n_views: int, staged
         if staged:
             material += cycle_seconds(costs, p, lv.faces, n_views)
     polish = 0.0
-    if staged and plan and c.lighting in ("estimate", "flash"):  # the lighting first, on the initial mesh
+    if staged and plan and c.lighting in ("estimate", "rig", "flash"):  # the lighting first, on the initial mesh
         material += c.light_first_cycles * cycle_seconds(costs, pixels_at(plan[0].size), plan[0].faces, n_views)
     if staged and plan:
         last = plan[-1]

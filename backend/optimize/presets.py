@@ -37,7 +37,7 @@ def lighting_kind(capture, lighting: str = "captured") -> str:
     """The kind of calibration scene a capture compares with: 'environment' when an
     environment map lights it (captured, or ``lighting`` 'estimate': one is fitted), else
     'point' (point lights or a flash)."""
-    if lighting == "estimate" or (capture is not None and capture.environment is not None):
+    if lighting in ("estimate", "rig") or (capture is not None and capture.environment is not None):
         return "environment"
     return "point"
 

@@ -95,6 +95,15 @@ def environment_to_world(rotation_z_deg: float) -> np.ndarray:
     return m
 
 
+def rig_environment_to_world(env: Environment, camera: Camera) -> np.ndarray:
+    """A camera-fixed map's transform for one view (``Environment.frame`` "camera"): the
+    lookup takes the rig frame's direction, d_rig = A^T d, with A = ``Environment.rig_axes``,
+    so to_world = A x the world map's transform."""
+    m = np.eye(4)
+    m[:3, :3] = Environment.rig_axes(camera.camera_to_world)
+    return m @ environment_to_world(env.rotation_z_deg)
+
+
 def environment_dict(env: Environment, pixels: np.ndarray | None = None) -> dict:
     if pixels is None:
         pixels = env.pixels if env.pixels is not None else read_rgba(env.path)[0][..., :3]
@@ -131,6 +140,10 @@ class SceneRenderer:
             scene[f"light{k}"] = point_light_dict(PointLight(np.zeros(3), np.zeros(3)))
         if environment is not None:
             scene["environment"] = environment_dict(environment, env_pixels)
+        # a camera-fixed map turns with each view (set before each render, as the point lights)
+        self.rig = ([rig_environment_to_world(environment, c) for c in cameras]
+                    if environment is not None and environment.frame == "camera" else None)
+        self._rig_view = None
         scene.update(extra_shapes or {})
         self.scene = mi.load_dict(scene)
         self.params = mi.traverse(self.scene)
@@ -175,10 +188,18 @@ class SceneRenderer:
         self.params.update()
         self._light_view = view
 
+    def _set_rig(self, view: int) -> None:
+        if self.rig is None or self._rig_view == view:
+            return
+        self.params["environment.to_world"] = mi.ScalarTransform4f(self.rig[view])
+        self.params.update()
+        self._rig_view = view
+
     def render(self, view: int, seed: int = 0, spp: int | None = None, params=None):
         """Render one view: an (H, W, 3) Dr.Jit tensor, (H, W, 4) with coverage as alpha
         when built with ``rgba``; differentiable w.r.t. ``params``."""
         self._set_lights(view)
+        self._set_rig(view)
         return mi.render(self.scene, params if params is not None else self.params,
                          sensor=self.sensors[view], seed=seed, spp=spp or self.settings.spp)
 

@@ -29,3 +29,26 @@ def test_camera_flash_puts_lighting_flash_on_the_command_line(context, extension
     sft.lighting = "CAPTURED"  # the other choices are unchanged
     argv = reconstruct.method_args(sft)
     assert "--lighting" not in argv and argv[argv.index("--env") + 1].endswith("sky.exr")
+
+
+def test_lighting_on_the_camera_puts_lighting_rig_on_the_command_line_and_leaves_the_world(context, extension,
+                                                                                          tmp_path):
+    """"Estimate, on the camera" becomes ``--lighting rig``; its map, fixed to the camera, is not
+    put in the World after the run (a World cannot turn with the view)."""
+    reconstruct = import_module(f"{extension.__name__}.addon.operators.reconstruct")
+    sft = context.scene.sft
+    items = {item.identifier: item.name for item in sft.bl_rna.properties["lighting"].enum_items}
+    assert items["RIG"] == "Estimate, on the camera"
+    sft.lighting = "RIG"
+    argv = reconstruct.method_args(sft)
+    assert argv[argv.index("--lighting") + 1] == "rig" and "--env" not in argv
+    log = []
+    bpy.types.SFT_PT_reconstruct.draw(types.SimpleNamespace(layout=RecordingLayout(log)), context)
+    assert any(entry[1].startswith("A map fixed to the camera") for entry in log if entry[0] == "label")
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "environment.exr").write_bytes(b"not read")
+    world = context.scene.world
+    note = reconstruct._load_estimated_lighting(context, run)
+    assert "camera rig" in note and context.scene.world is world
+    sft.lighting = "ESTIMATE"
