@@ -26,8 +26,7 @@ EFFECTS = (
 )
 LIGHTING = (
     ("ESTIMATE", "Estimate", "Fit an environment map with the material (no HDR capture needed); the World shows "
-     "it after the run. Albedo and light share one scale and colour: the map is made white on average and the "
-     "object's mean albedo 0.5, so the albedo carries the object's colour"),
+     "it after the run. Albedo and light share one scale: the object's mean albedo is set to 0.5"),
     ("CAPTURED", "Captured HDR", "The imported environment map (Import Environment Map) or the capture's own lights"),
     ("RIG", "Estimate, on the camera", "Fit an environment map fixed to the camera instead of the world "
      "(lamps on the camera rig, as in DTU-like studios: the light turns with every view); the World is left "

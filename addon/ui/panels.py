@@ -126,7 +126,7 @@ class SFT_PT_reconstruct(_Panel, bpy.types.Panel):
         col.prop(sft, "effects")
         col.prop(sft, "lighting")
         if sft.lighting == "ESTIMATE":
-            col.label(text="Lighting estimated with the material (white on average, mean albedo 0.5)", icon="WORLD_DATA")
+            col.label(text="Lighting estimated with the material (mean albedo 0.5 sets the scale)", icon="WORLD_DATA")
         elif sft.lighting == "RIG":
             col.label(text="A map fixed to the camera, estimated with the material", icon="CAMERA_DATA")
         elif sft.lighting == "FLASH":

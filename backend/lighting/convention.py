@@ -9,14 +9,12 @@ the light divided by s, so the object's mean albedo (over its faces and the thre
 channels) is ``ALBEDO_CONVENTION``; the renders do not change while no value clips at 1.
 
 The product is free per colour channel too: a bluer albedo under a yellower light renders
-the same diffuse image. A flash is white (one scalar intensity). An estimated map is made
-white on average before each stage (``neutral_colour``: its solid-angle mean has equal
-channels), as a white-balanced camera sees its light, so the albedo carries the object's
-colour. Without it the split is wherever the fit stopped from its first guess, and an albedo
-carried under another light takes the old light's colour with it. The diffuse image does not
-change; the specular lobe, one scalar, takes the light's colour, so the step comes before a
-stage, whose fit settles the highlights again (made after a stage, the step left the final
-highlights off the fit: docs/results.md, "The colour of the light")."""
+the same diffuse image. A flash is white (one scalar intensity). An estimated map starts
+white (a uniform grey, or the background's colours) and the fit settles the split from
+there; it is not forced afterwards. Making the map white on average at every stage moves the
+specular lobe's colour (one scalar, lit by the map), and on the textured torus it cost held-out
+accuracy without a steady gain relit (docs/notes/2026-11-28-light-colour-and-rig.md). Scoring
+under another light therefore treats the colour as free, as the scale (backend.metrics.evaluate)."""
 
 from __future__ import annotations
 
@@ -25,12 +23,9 @@ import numpy as np
 ALBEDO_CONVENTION = 0.5  # the object's mean albedo (over its surface and the three channels)
 
 
-def describe(light: str, colour: bool = False) -> str:
-    """The convention in words, for reports and events (``light``: what is rescaled with the
-    albedo; ``colour``: its mean colour is made white as well)."""
-    white = f", the {light} white on average (the albedo carries the colour)" if colour else ""
-    return (f"mean albedo of the object = {ALBEDO_CONVENTION}{white} "
-            f"({light} and albedo rescaled together after each stage)")
+def describe(light: str) -> str:
+    """The convention in words, for reports and events (``light``: what is rescaled with the albedo)."""
+    return f"mean albedo of the object = {ALBEDO_CONVENTION} ({light} and albedo rescaled together after each stage)"
 
 
 def mean_albedo(material) -> float:
@@ -54,17 +49,3 @@ def normalise_albedo(material) -> float:
         ch = material.channels[name]
         material.set_values(name, np.clip(material.values(name) * s, 1e-4, 1 - 1e-4), ch.kind)
     return s
-
-
-def neutral_colour(material, light_mean) -> np.ndarray:
-    """The colour half of the convention: albedo multiplied per channel by k = light_mean /
-    its mean over channels (values kept inside (0, 1)), so that the light divided by k is
-    white on average; returns k (ones for a light with a black channel). The caller divides
-    its light by k; ``normalise_albedo`` then settles the scale."""
-    light_mean = np.asarray(light_mean, np.float64)
-    if not float(light_mean.min()) > 1e-12:
-        return np.ones(3)
-    k = light_mean / light_mean.mean()
-    material.set_values("albedo", np.clip(material.values("albedo") * k, 1e-4, 1 - 1e-4),
-                        material.channels["albedo"].kind)
-    return k

@@ -12,10 +12,10 @@ and an albedo bounded by 1 cannot make up the difference while the map climbs to
 
 The material stages fit it by Adam jointly with the material latents (``EnvironmentFit``,
 the ``lighting`` argument of ``material.stages.fit``); geometry steps render with the
-current map and leave it fixed. Albedo x light has one free scale and colour: before each
-stage the map is made white on average, the albedo taking its colour (``balance``), and after
-it map and material are rescaled together so that the object's mean albedo is
-``ALBEDO_CONVENTION`` (backend.lighting.convention; the renders do not change).
+current map and leave it fixed. Albedo x light has one free scale: after each stage the map
+and the material are rescaled together so that the object's mean albedo is
+``ALBEDO_CONVENTION`` (backend.lighting.convention; the renders do not change). The colour is
+free too; the map starts white and the fit settles it.
 
 ``--lighting rig`` fits the same map fixed to each view's camera instead of the world
 (``Environment.frame`` "camera": lamps on the camera rig, as in DTU-like studio captures,
@@ -31,11 +31,11 @@ from PIL import Image
 
 from ..capture.images import read_linear_rgb, read_mask, write_image
 from ..capture.model import Capture, Environment
-from .convention import ALBEDO_CONVENTION, describe, neutral_colour, normalise_albedo
+from .convention import ALBEDO_CONVENTION, describe, normalise_albedo
 
 RESOLUTIONS = ((16, 8), (32, 16), (64, 32))  # (width, height): constant, diffuse, specular stage
 STAGE_RESOLUTION = {"constant": 0, "diffuse": 1, "specular": 2, "done": 2}
-CONVENTION = describe("map", colour=True)
+CONVENTION = describe("map")
 INIT_SIZE = 64  # long side of the frames read for the initial map
 BACKGROUND_LEVEL = 1e-4  # a background pixel this dark is black (a premultiplied or masked frame)
 BACKGROUND_SHARE = 0.05  # a frame whose background is black but for this share shows none (edge leaks)
@@ -173,7 +173,6 @@ class EstimatedEnvironment:
         self.level = 0
         self.frame = frame  # "world", or "camera": fixed to each view's camera (--lighting rig)
         self.scales: list[float] = []  # the convention's rescaling factors, one per stage
-        self.colours: list[list[float]] = []  # per-channel albedo factors that made the map white
 
     @classmethod
     def initial(cls, capture: Capture, path: Path, frame: str = "world") -> "EstimatedEnvironment":
@@ -219,14 +218,6 @@ class EstimatedEnvironment:
     def rescale(self, factor: float) -> None:
         self.latent = self.latent + np.float32(np.log(factor))
 
-    def balance(self, material) -> None:
-        """The colour half of the convention, before a stage: the map made white on average,
-        the albedo x k per channel. The diffuse image does not change; the specular lobe's colour
-        does, and the stage about to run fits it again, so a run ends on renders its fit chose."""
-        k = neutral_colour(material, sphere_mean(self.pixels))
-        self.latent = (self.latent - np.log(k)[None, None, :]).astype(np.float32)
-        self.colours.append([round(float(x), 6) for x in k])
-
     def normalise(self, material) -> float:
         """The scale convention, after a stage: map and material rescaled together so the mean
         albedo is ``ALBEDO_CONVENTION`` (specular scaled with the albedo; renders unchanged
@@ -264,7 +255,7 @@ class EstimatedEnvironment:
                 "parameterisation": "texel = exp(latent), smoothness prior on neighbouring latents",
                 "smoothness": self.smoothness, "frame": self.frame, "initial": self.source, "background_coverage": round(self.seen, 4),
                 "background_scale": round(self.background_scale, 6),
-                "scale_convention": CONVENTION, "albedo_scales": self.scales, "albedo_colours": self.colours,
+                "scale_convention": CONVENTION, "albedo_scales": self.scales,
                 "mean_radiance": [round(x, 6) for x in self.mean_radiance()]}
 
     def event(self) -> dict:
@@ -272,8 +263,7 @@ class EstimatedEnvironment:
         report = self.report()
         return {"model": "estimate", "frame": self.frame, "resolution": report["resolution"], "initial": report["initial"],
                 "scale_convention": report["scale_convention"], "mean_radiance": report["mean_radiance"],
-                "albedo_scale": self.scales[-1] if self.scales else None,
-                "albedo_colour": self.colours[-1] if self.colours else None}
+                "albedo_scale": self.scales[-1] if self.scales else None}
 
     def fit(self) -> "EnvironmentFit":
         return EnvironmentFit(self)

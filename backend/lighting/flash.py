@@ -113,9 +113,6 @@ class Flash:
     def at_stage(self, stage: str) -> bool:
         return False  # one parameter at every stage
 
-    def balance(self, material) -> None:
-        """The convention's colour: a flash is white already (one scalar intensity)."""
-
     def normalise(self, material) -> float:
         """The scale convention (backend.lighting.convention): albedo x s, intensity / s.
         Returns s."""

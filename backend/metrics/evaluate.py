@@ -190,11 +190,11 @@ def _run_view_metrics(report: dict, run: Path, capture, gt: Mesh, samples: int, 
 
 
 def relit_albedo_scale(display: Mesh, gt: Mesh, lighting, samples: int, seed: int) -> list[float] | None:
-    """The factors a (one per channel) that bring a flash or estimate run's albedo (mean 0.5
-    and a white light by the convention, backend.lighting.convention) to the truth's units
-    and colour, so that its relit views compare with a captured run's: mean true over mean
-    predicted albedo per channel at corresponding surface points, the convention's free scale
-    and colour. None for a captured run (its albedo is in the light's units already) or when
+    """The factors a (one per channel) that bring a flash or estimate run's albedo (mean 0.5 by
+    the convention, its colour split with the light's as the fit left it:
+    backend.lighting.convention) to the truth's units and colour, so that its relit views
+    compare with a captured run's: mean true over mean predicted albedo per channel at
+    corresponding surface points, the free scale and colour of albedo x light. None for a captured run (its albedo is in the light's units already) or when
     either mesh has no albedo (the relit views are then scored unscaled)."""
     if not lighting.convention or display.vertex_colors is None or gt.vertex_colors is None:
         return None

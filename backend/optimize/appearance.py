@@ -167,7 +167,6 @@ class Appearance:
         self.emit("stage", stage=f"material:{stage_before}", level=level, faces=mesh.n_faces)
         if self.lighting is not None:
             self.lighting.at_stage(stage_before)  # coarse to fine: the stage's map resolution
-            self.lighting.balance(material)  # the convention's colour; the stage refits the highlights
             self.capture.environment = self.lighting.environment()
         renderer = self._renderer(mesh, material, views, geometry=False)
         result = self.driver.cycle(renderer, [v.target for v in views], self._masks(views), material, self.emit,

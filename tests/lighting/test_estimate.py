@@ -161,34 +161,6 @@ def test_normalise_keeps_renders_and_sets_mean_albedo():
 
 
 
-def test_normalise_makes_the_map_white_and_keeps_the_diffuse_renders():
-    """The convention: a yellow map and a grey albedo become a white map and a yellow albedo of
-    mean 0.5, and the diffuse image (real renders) stays the same."""
-    mesh = procedural.blob(2)
-    cams = layout.orbit_cameras(layout.fibonacci_sphere(3), np.zeros(3), 0.6, 24)
-    material = MeshColorMaterial(mesh, 1)
-    material.set_values("albedo", [0.4, 0.4, 0.4])
-    material.disable("specular")
-    sky = procedural.sky(16) * np.array([1.2, 1.0, 0.6], np.float32)  # a yellow sky
-    fitted = estimate.EstimatedEnvironment(np.log(box_down(sky, 16, 8)), Path("e.exr"))
-
-    def renders():
-        r = SceneRenderer(mesh, material.field, cams, [[] for _ in cams], fitted.environment(),
-                          RenderSettings(spp=32, max_depth=2, integrator="path"))
-        return np.stack([r.render_numpy(v, seed=3) for v in range(len(cams))])
-
-    before = renders()
-    fitted.balance(material)  # before a stage: the colour
-    fitted.normalise(material)  # after it: the scale
-    white = estimate.sphere_mean(fitted.pixels)
-    assert white == pytest.approx(np.full(3, white.mean()), rel=1e-4)
-    albedo = material.values("albedo").mean(0)
-    assert albedo[0] > albedo[1] > albedo[2] and albedo.mean() == pytest.approx(0.5, rel=1e-3)
-    k = np.array(fitted.colours[-1])
-    assert k[0] > 1 > k[2] and "white on average" in fitted.report()["scale_convention"]
-    after = renders()
-    assert np.abs(after - before).mean() < 0.01 * before.mean()
-
 def test_resolve_lighting_defaults_and_errors(tmp_path):
     dark = Capture(tmp_path, [])
     assert resolve_lighting(dark, None) == "estimate"
