@@ -253,7 +253,8 @@ class EstimatedEnvironment:
         width, height = self.resolution
         return {"model": "environment map (estimated)", "file": FILENAME, "resolution": [width, height],
                 "parameterisation": "texel = exp(latent), smoothness prior on neighbouring latents",
-                "smoothness": self.smoothness, "frame": self.frame, "initial": self.source, "background_coverage": round(self.seen, 4),
+                "smoothness": self.smoothness, "frame": self.frame, "initial": self.source,
+                "background_coverage": round(self.seen, 4),
                 "background_scale": round(self.background_scale, 6),
                 "scale_convention": CONVENTION, "albedo_scales": self.scales,
                 "mean_radiance": [round(x, 6) for x in self.mean_radiance()]}
@@ -261,7 +262,8 @@ class EstimatedEnvironment:
     def event(self) -> dict:
         """The ``lighting`` event's fields (docs/protocol.md)."""
         report = self.report()
-        return {"model": "estimate", "frame": self.frame, "resolution": report["resolution"], "initial": report["initial"],
+        return {"model": "estimate", "frame": self.frame, "resolution": report["resolution"],
+                "initial": report["initial"],
                 "scale_convention": report["scale_convention"], "mean_radiance": report["mean_radiance"],
                 "albedo_scale": self.scales[-1] if self.scales else None}
 

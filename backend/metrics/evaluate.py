@@ -194,8 +194,9 @@ def relit_albedo_scale(display: Mesh, gt: Mesh, lighting, samples: int, seed: in
     the convention, its colour split with the light's as the fit left it:
     backend.lighting.convention) to the truth's units and colour, so that its relit views
     compare with a captured run's: mean true over mean predicted albedo per channel at
-    corresponding surface points, the free scale and colour of albedo x light. None for a captured run (its albedo is in the light's units already) or when
-    either mesh has no albedo (the relit views are then scored unscaled)."""
+    corresponding surface points, the free scale and colour of albedo x light. None for a
+    captured run (its albedo is in the light's units already) or when either mesh has no
+    albedo (the relit views are then scored unscaled)."""
     if not lighting.convention or display.vertex_colors is None or gt.vertex_colors is None:
         return None
     pa, ga = geo.corresponding_albedo(display, gt, samples, seed)

@@ -35,7 +35,6 @@ from .objective import Objective
 from .stiffness import STIFF
 
 
-
 def _emitters(capture: Capture) -> list[str]:
     kinds = ["point"] if capture.has_point_lights else []
     return kinds + (["environment"] if capture.environment is not None else [])
