@@ -6,9 +6,12 @@ sphere start), the commands a user runs, as child processes:
 
 1. ``import SRC --out OUT/<name>/capture --max-size IMPORT`` (frames downscaled once);
 2. ``reconstruct CAPTURE --out OUT/<name>/run --time-budget MINUTES --max-size SIZE
-   --track-accuracy --held-out-every K`` with every other default: the capture has no map, so
-   the lighting is estimated (an environment map fitted with the material, its scale fixed by
-   the convention's mean albedo, RUN/environment.exr); ``--track-accuracy`` leaves every
+   --track-accuracy --held-out-every K --lighting L`` with every other default: the capture
+   has no map, so the lighting is estimated (an environment map fitted with the material, its
+   scale fixed by the convention's mean albedo, RUN/environment.exr): ``L`` is ``rig`` for DTU,
+   whose studio lamps travel with the camera (its frames are fitted closer under a map fixed to
+   the camera than under one fixed to the world: docs/results.md), ``estimate`` for the others;
+   ``--reconstruct-args`` with a ``--lighting`` of its own wins; ``--track-accuracy`` leaves every
    K-th frame out of everything the run fits (K per capture below: 8 where the capture has
    16 frames or more, fewer on the short ones so that two frames are held out);
 3. the contact sheet, ``OUT/<name>/contact_sheet.png``: one row per held-out frame and per
@@ -51,10 +54,12 @@ class RealCapture:
     source: str  # under the shared data folder
     held_out_every: int
     about: str
+    lighting: str = "estimate"  # reconstruct --lighting: "rig" where the lamps travel with the camera
 
 
 CAPTURES = {
-    "dtu": RealCapture("captures/dtu_scan65", 6, "DTU scan 65: a skull under studio lights, 13 frames, the dataset's masks"),
+    "dtu": RealCapture("captures/dtu_scan65", 6,
+                       "DTU scan 65: a skull under studio lights, 13 frames, the dataset's masks", "rig"),
     "dino": RealCapture("captures/middlebury_dinoSparseRing/dinoSR_par.txt", 8,
                         "Middlebury dino: 16 frames on a ring, masks derived from the images"),
     "buddha": RealCapture("captures/alicevision_buddha", 2, "AliceVision Buddha: 4 frames, no masks (sphere start)"),
@@ -139,6 +144,14 @@ def write_sheet(path: Path, rows: list[dict], title: str) -> None:
     sheet.save(path)
 
 
+def lighting_args(spec: RealCapture, extra: str) -> list[str]:
+    """reconstruct's further arguments: ``extra`` (split), with the capture's ``--lighting``
+    unless ``extra`` names one."""
+    words = extra.split()
+    named = any(w == "--lighting" or w.startswith("--lighting=") for w in words)
+    return words if named else ["--lighting", spec.lighting, *words]
+
+
 def one(name: str, spec: RealCapture, args) -> dict:
     folder = args.out / name
     capture, run = folder / "capture", folder / "run"
@@ -148,13 +161,15 @@ def one(name: str, spec: RealCapture, args) -> dict:
     imported = time.perf_counter()
     if args.rerun or not (run / "report.json").is_file():
         _backend("reconstruct", capture, "--out", run, "--time-budget", args.minutes, "--max-size", args.max_size,
-                 "--track-accuracy", "--held-out-every", spec.held_out_every, *args.reconstruct_args.split())
+                 "--track-accuracy", "--held-out-every", spec.held_out_every,
+                 *lighting_args(spec, args.reconstruct_args))
     reconstructed = time.perf_counter()
     report = json.loads((run / "report.json").read_text())
     rows = render_rows(capture, run, args.max_size, args.spp, args.fitted)
     held = [r["psnr"] for r in rows if r["held_out"]]
     fit = [r["psnr"] for r in rows if not r["held_out"]]
-    lighting = fitted.from_run(run).model
+    used = fitted.from_run(run)
+    lighting = "rig" if used.environment is not None and used.environment.frame == "camera" else used.model
     title = (f"{spec.about}; {args.minutes:g} min, lighting {lighting}; "
              f"held-out {np.mean(held):.2f} dB" if held else f"{spec.about}; nothing held out")
     write_sheet(folder / "contact_sheet.png", rows, title)

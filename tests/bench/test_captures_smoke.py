@@ -40,7 +40,9 @@ def test_runs_and_scores_held_out_frames(bench):
     # every 6th of 13 frames: two held out, never fitted, each scored
     assert len(result["held_out_frames"]) == 2 and set(result["held_out_psnr_each"]) == set(result["held_out_frames"])
     assert all(math.isfinite(p) and 0 < p < 60 for p in result["held_out_psnr_each"].values())
-    assert result["lighting"] == "estimate" and result["environment_map"]
+    assert result["lighting"] == "rig" and result["environment_map"]  # DTU's lamps travel with the camera
+    lighting = json.loads((args.out / "dtu" / "run" / "report.json").read_text())["lighting"]
+    assert lighting["frame"] == "camera"
     report = json.loads((args.out / "dtu" / "run" / "report.json").read_text())
     assert set(report["accuracy_time"]["held_out_views"]) == set(result["held_out_frames"])
     assert report["accuracy_time"]["fitted_views"] == 11
@@ -54,6 +56,13 @@ def test_contact_sheet_has_a_row_per_scored_frame(bench):
     h = 24  # DTU is 4:3: 32 x 24 at --max-size 32
     assert sheet.shape[0] == 14 + rows * (h + 14 + 4) + 4 and sheet.shape[1] == 3 * 32 + 4 * 4
     assert sheet[..., :3].std() > 5  # photos and renders, not an empty canvas
+
+
+def test_a_lighting_of_the_users_wins_over_the_captures():
+    dtu = captures.CAPTURES["dtu"]
+    assert captures.lighting_args(dtu, "--iterations 6") == ["--lighting", "rig", "--iterations", "6"]
+    assert captures.lighting_args(dtu, "--lighting flash") == ["--lighting", "flash"]
+    assert captures.lighting_args(captures.CAPTURES["dino"], "")[:2] == ["--lighting", "estimate"]
 
 
 def test_unknown_capture_is_a_clear_error(tmp_path, capsys):
