@@ -160,7 +160,9 @@ def one(name: str, spec: RealCapture, args) -> dict:
         _backend("import", SHARED_DATA / spec.source, "--out", capture, "--max-size", args.import_size, "--overwrite")
     imported = time.perf_counter()
     if args.rerun or not (run / "report.json").is_file():
-        _backend("reconstruct", capture, "--out", run, "--time-budget", args.minutes, "--max-size", args.max_size,
+        # --overwrite: the folder is the bench's own, and one a stopped bench left has no result
+        _backend("reconstruct", capture, "--out", run, "--overwrite", "--time-budget", args.minutes,
+                 "--max-size", args.max_size,
                  "--track-accuracy", "--held-out-every", spec.held_out_every,
                  *lighting_args(spec, args.reconstruct_args))
     reconstructed = time.perf_counter()
