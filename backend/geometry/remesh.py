@@ -8,8 +8,7 @@ hole) are dropped. Screened Poisson reconstruction of the remaining oriented poi
 closed manifold without interior or self-intersecting triangles, whose genus may differ
 from the input's. Screened Poisson closes every gap, including the one the dropped hits left
 over a hole, so the result is then cut to the visual hull (its intersection with the masks'
-cones), rid of the pieces no mask needs (``drop_unneeded_components``) and simplified to the
-face target."""
+cones) and simplified to the face target."""
 
 from __future__ import annotations
 
@@ -27,15 +26,12 @@ from .poisson import depth_for_resolution, poisson
 from .raycast import RayCaster, pixel_rays
 from .sampling import sample_surface
 from .simplify import edge_length_for_faces, simplify
-from .topology import clean, face_components, keep_largest_components
+from .topology import keep_largest_components
 
 
 @dataclass
 class RemeshConfig:
     mask_tolerance_px: float = 1.5  # samples further outside a mask than this are dropped
-    # a piece apart from the largest is kept when, in some view, it alone covers this share
-    # of the mask (drop_unneeded_components)
-    needed_mask_share: float = 0.01
     cells_per_edge: float = 1.5  # Poisson octree cells per target edge length
     max_depth: int = 10
     point_weight: float = 4.0
@@ -123,36 +119,8 @@ def poisson_from_samples(samples: VisibleSamples, mesh: Mesh, target_faces: int,
     rebuilt = poisson(samples.points, samples.normals, depth=depth, point_weight=config.point_weight)
     if masks is not None and cameras is not None:
         rebuilt = clip_to_masks(rebuilt, cameras, masks, spacing)
-        rebuilt = drop_unneeded_components(rebuilt, cameras, masks, config.needed_mask_share)
     return simplify(rebuilt, target_faces)
 
-
-def drop_unneeded_components(mesh: Mesh, cameras: list[Camera], masks: list[np.ndarray],
-                             needed_share: float = 0.01) -> Mesh:
-    """``mesh`` without the pieces (connected components other than the largest) that no mask
-    needs. A piece is needed where it is the first hit of a pixel inside the mask that the
-    largest piece does not cover; it is kept when, in some view, such pixels make up
-    ``needed_share`` of the mask. A floater that every view sees inside the object's silhouette
-    or not at all explains nothing the masks ask for, and shows outside the mask from views the
-    fit never had; a separate part beside the object fills mask pixels of its own."""
-    n, labels = face_components(mesh)
-    if n <= 1:
-        return mesh
-    largest = int(np.argmax(np.bincount(labels)))
-    main = Mesh(mesh.vertices, mesh.faces[labels == largest])
-    whole, alone = RayCaster(mesh), RayCaster(main)
-    needed = np.zeros(n, bool)
-    needed[largest] = True
-    for cam, mask in zip(cameras, masks):
-        o, d = pixel_rays(cam)
-        inside = np.asarray(mask).reshape(-1) > 0.5
-        first = whole.intersect(o, d)
-        uncovered = inside & first.hit & ~alone.intersect(o, d).hit
-        counts = np.bincount(labels[first.face[uncovered]], minlength=n)
-        needed |= counts >= needed_share * max(int(inside.sum()), 1)
-    if needed.all():
-        return mesh
-    return clean(Mesh(mesh.vertices, mesh.faces[needed[labels]]))
 
 
 def remesh(mesh: Mesh, cameras: list[Camera], masks: list[np.ndarray] | None, target_faces: int,
