@@ -122,7 +122,6 @@ def poisson_from_samples(samples: VisibleSamples, mesh: Mesh, target_faces: int,
     return simplify(rebuilt, target_faces)
 
 
-
 def remesh(mesh: Mesh, cameras: list[Camera], masks: list[np.ndarray] | None, target_faces: int,
            config: RemeshConfig | None = None) -> tuple[Mesh, VisibleSamples]:
     """Rebuild ``mesh`` from its ray-cast samples; at most ``target_faces`` faces."""

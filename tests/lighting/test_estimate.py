@@ -160,7 +160,6 @@ def test_normalise_keeps_renders_and_sets_mean_albedo():
     assert float(fitted.pixels.mean()) == pytest.approx(2.0 * 0.3 / 0.5, rel=1e-3)
 
 
-
 def test_resolve_lighting_defaults_and_errors(tmp_path):
     dark = Capture(tmp_path, [])
     assert resolve_lighting(dark, None) == "estimate"

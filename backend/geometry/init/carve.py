@@ -21,6 +21,7 @@ def carve(capture: Capture, faces: int = 5000, config: HullConfig | None = None)
     hull = visual_hull(capture, config)
     mesh = marching_tetrahedra(hull.values, LEVEL, hull.origin, hull.spacing)
     mesh = keep_largest_components(mesh, min_share=0.01)
-    cameras = [f.camera for f in capture.frames]
-    mesh = drop_unneeded_components(mesh, cameras, [read_mask(f.mask) for f in capture.frames])
+    if all(f.mask is not None for f in capture.frames):
+        mesh = drop_unneeded_components(mesh, [f.camera for f in capture.frames],
+                                        [read_mask(f.mask) for f in capture.frames])
     return simplify(mesh, faces)
