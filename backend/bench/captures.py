@@ -42,6 +42,7 @@ from ..capture.images import linear_to_srgb, read_linear_rgb
 from ..capture.load import load_capture
 from ..geometry.mesh import load_mesh
 from ..lighting import fitted
+from ..lighting.setup import MAP_FRAME
 from ..metrics.image import psnr
 from ..optimize.views import ViewSet
 from ._data import SHARED_DATA
@@ -171,7 +172,8 @@ def one(name: str, spec: RealCapture, args) -> dict:
     held = [r["psnr"] for r in rows if r["held_out"]]
     fit = [r["psnr"] for r in rows if not r["held_out"]]
     used = fitted.from_run(run)
-    lighting = "rig" if used.environment is not None and used.environment.frame == "camera" else used.model
+    frame = used.environment.frame if used.environment is not None else None
+    lighting = "rig" if frame == MAP_FRAME["rig"] else used.model
     title = (f"{spec.about}; {args.minutes:g} min, lighting {lighting}; "
              f"held-out {np.mean(held):.2f} dB" if held else f"{spec.about}; nothing held out")
     write_sheet(folder / "contact_sheet.png", rows, title)

@@ -23,7 +23,9 @@ from ..errors import InputError, require
 from . import flash
 
 MODES = ("captured", "estimate", "rig", "flash", "none")
-ESTIMATED = ("estimate", "rig")  # an environment map fitted with the material (world- or camera-fixed)
+# the modes that fit an environment map with the material, and the frame it is fixed to
+MAP_FRAME = {"estimate": "world", "rig": "camera"}
+ESTIMATED = tuple(MAP_FRAME)
 HELP = ("the lighting: 'captured' (the capture's environment map and point lights, or --env), 'estimate' (an "
         "environment map fitted with the material, written as RUN/environment.exr; a captured map is withheld), "
         "'rig' (the same map fixed to the camera: lamps on the camera rig, as in DTU-like studios), "

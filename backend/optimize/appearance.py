@@ -24,7 +24,7 @@ from ..errors import InputError
 from ..lighting.estimate import FILENAME as ESTIMATED_MAP
 from ..lighting.estimate import EstimatedEnvironment
 from ..lighting.flash import Flash
-from ..lighting.setup import ESTIMATED
+from ..lighting.setup import ESTIMATED, MAP_FRAME
 from ..material import factory
 from ..material.driver import MaterialDriver
 from ..material.export import write_glb
@@ -62,7 +62,7 @@ class Appearance:
         ``--lighting flash``: every frame is lit by a flash at its camera, at the intensity the
         frames suggest (a resumed run's comes back with ``restore``)."""
         if self.config.lighting in ESTIMATED:
-            path, frame = folder / ESTIMATED_MAP, "camera" if self.config.lighting == "rig" else "world"
+            path, frame = folder / ESTIMATED_MAP, MAP_FRAME[self.config.lighting]
             self.lighting = (EstimatedEnvironment.load(path, frame=frame) if resume and path.is_file()
                              else EstimatedEnvironment.initial(self.capture, path, frame))
             self.capture.environment = self.lighting.environment()
