@@ -1,10 +1,11 @@
-"""Predicted against measured: the plan's time and the calibration's F1 on held-out captures.
+"""Predicted against measured: the plan's time, held-out PSNR and the calibration's F1 on held-out captures.
 
 ``python -m backend bench plan --out OUT [--preset draft] [--captures a,b,...]`` synthesises
 five small captures of different kinds, none of which set a constant of the cost model
-(optimize/plan.py) or the calibration (``bench calibrate``), and runs ``reconstruct CAPTURE
---preset PRESET`` on each with every other default (staged material, effects measured), as
-child processes, one after the other:
+(optimize/plan.py), the accuracy gains (optimize/forecast.py) or the calibration (``bench
+calibrate``), and runs ``reconstruct CAPTURE --preset PRESET --track-accuracy`` on each with
+every other default (staged material, effects measured), as child processes, one after the
+other:
 
 - ``bunny48``: the bunny with a procedural albedo texture, two point lights per camera;
 - ``blob_env48``: the built-in blob under the ``venice_sunset`` HDR map;
@@ -13,10 +14,16 @@ child processes, one after the other:
 - ``spot_flash48``: Spot with a texture, lit by a flash at each camera.
 
 For each it reads the ``preset`` event (``predicted_minutes``, planned once the run has
-decided its effects; ``expected_f1``, the calibration scene's of the capture's lighting kind)
-and compares them with the process's wall clock and the run's F1@0.01 against the capture's
-true mesh. Prints a table, the median and worst absolute time error, and writes
-``OUT/plan.json``. Target (issue #23): time within ±30 %, F1 within 0.03."""
+decided its effects; ``predicted_psnr``, this capture's probe plus the preset's gain;
+``expected_f1``, the calibration scene's of the capture's lighting kind) and compares them
+with the process's wall clock, the run's last held-out PSNR (``accuracy_time``; the synthetic
+captures' own held-out views, which every run fits around) and its F1@0.01 against the
+capture's true mesh. Prints a table, the median and worst absolute errors, and writes
+``OUT/plan.json``. Target (issue #23): time within ±30 %, accuracy within 2 dB or 0.03 F1.
+
+``--calibrate`` runs the ``TRAINING`` captures instead (five others, of the same kinds) and
+writes the preset's gain, the median of (last held-out PSNR − probe) over them, into
+``backend/forecast.json`` (``--gains-file``), keeping the other presets' entries."""
 
 from __future__ import annotations
 
@@ -32,6 +39,7 @@ from ..errors import InputError, require
 from ..events import Emitter
 from ._data import SHARED_DATA
 from ._machine import code_version, machine
+from ..optimize.forecast import GAINS_FILE
 from .sweep import REPO, Setting, reconstruct_child
 
 MESHES = SHARED_DATA / "meshes"
@@ -48,8 +56,20 @@ CAPTURES = {
 }
 # the smoke test's capture (not among the default ones): the blob, 6 views at 24 px
 SMOKE = {"tiny": ["--views", 6, "--resolution", 24, "--spp", 8, "--held-out", 0]}
+# the captures that calibrate the accuracy gains (--calibrate): other meshes, maps and textures
+TRAINING = {
+    "dragon48": ["--mesh", MESHES / "shapefromtracing" / "dragon.obj", "--up", "y", "--views", 10, "--resolution", 48],
+    "bob_env48": ["--mesh", MESHES / "crane" / "bob" / "bob_tri.obj", "--up", "y", "--views", 10, "--resolution", 48,
+                  "--lighting", "env", "--env", ENVMAPS / "studio_small_03_1k.hdr", "--albedo", "pattern"],
+    "blub48": ["--mesh", MESHES / "crane" / "blub" / "blub_triangulated.obj", "--up", "y", "--views", 10,
+               "--resolution", 48, "--albedo", "pattern"],
+    "blob_flash48": ["--views", 10, "--resolution", 48, "--lighting", "flash"],
+    "sbunny_env64": ["--mesh", MESHES / "stanford" / "bunny_watertight.obj", "--up", "y", "--views", 14,
+                     "--resolution", 64, "--lighting", "env", "--env", ENVMAPS / "forest_slope_1k.hdr"],
+}
 TIME_TOLERANCE = 0.30
 F1_TOLERANCE = 0.03
+PSNR_TOLERANCE = 2.0
 
 
 class _Preset(Setting):
@@ -57,14 +77,15 @@ class _Preset(Setting):
     caps the steps (the smoke test)."""
 
     def args(self) -> list[str]:
-        return ["--preset", self.preset] + ([] if self.iterations is None else ["--iterations", str(self.iterations)])
+        return (["--preset", self.preset, "--track-accuracy"]
+                + ([] if self.iterations is None else ["--iterations", str(self.iterations)]))
 
 
 def synthesise(name: str, out: Path, log: Path) -> Path:
     folder = out / "captures" / name
     if (folder / "capture.json").is_file():
         return folder
-    spec = {**CAPTURES, **SMOKE}[name]
+    spec = {**CAPTURES, **TRAINING, **SMOKE}[name]
     for arg in spec:
         if isinstance(arg, Path):
             require(arg.is_file(), arg, "benchmark data not found", "fetch the shared data or set SFT_SHARED_DATA")
@@ -91,38 +112,51 @@ def measure(name: str, capture: Path, preset: str, out: Path, variant: str | Non
     effects = next((e for e in events if e["event"] == "effects"), {})
     report = json.loads((run / "report.json").read_text())
     f1 = (report.get("metrics") or {}).get("f1@0.01")
+    points = (report.get("accuracy_time") or {}).get("points") or []
     predicted = promise.get("predicted_minutes")
     row.update(lighting_kind=promise.get("lighting_kind"), predicted_minutes=predicted,
                measured_minutes=round(timing["seconds"] / 60, 2),
                time_error=None if predicted is None else round(predicted * 60 / timing["seconds"] - 1, 3),
                expected_f1=promise.get("expected_f1"), f1=None if f1 is None else round(f1 / 100, 4),
+               probe_psnr=(promise.get("probe") or {}).get("psnr"), predicted_psnr=promise.get("predicted_psnr"),
+               psnr=points[-1]["psnr"] if points else None,
                effects=effects.get("enabled"), levels=len(report.get("levels", [])),
                plan=(promise.get("plan") or {}) and {k: promise["plan"][k] for k in
                                                      ("geometry_s", "material_s", "polish_s", "fixed_s")},
                measured=report.get("timings"))
     if row["f1"] is not None and row["expected_f1"] is not None:
         row["f1_error"] = round(row["expected_f1"] - row["f1"], 4)
+    if row["psnr"] is not None and row["predicted_psnr"] is not None:
+        row["psnr_error"] = round(row["predicted_psnr"] - row["psnr"], 2)
+    if row["psnr"] is not None and row["probe_psnr"] is not None:
+        row["gain_db"] = round(row["psnr"] - row["probe_psnr"], 2)
     return row
 
 
 def summary(rows: list[dict]) -> dict:
     errors = [abs(r["time_error"]) for r in rows if r.get("time_error") is not None]
     f1 = [abs(r["f1_error"]) for r in rows if r.get("f1_error") is not None]
-    return {"time_median_abs_error": round(statistics.median(errors), 3) if errors else None,
+    db = [abs(r["psnr_error"]) for r in rows if r.get("psnr_error") is not None]
+    return {"psnr_median_abs_error": round(statistics.median(db), 2) if db else None,
+            "psnr_worst_abs_error": round(max(db), 2) if db else None,
+            "psnr_within": sum(e <= PSNR_TOLERANCE for e in db),
+            "time_median_abs_error": round(statistics.median(errors), 3) if errors else None,
             "time_worst_abs_error": round(max(errors), 3) if errors else None,
             "time_within": sum(e <= TIME_TOLERANCE for e in errors), "f1_within": sum(e <= F1_TOLERANCE for e in f1),
             "f1_median_abs_error": round(statistics.median(f1), 4) if f1 else None, "runs": len(rows)}
 
 
 def table(rows: list[dict]) -> str:
-    head = ("capture", "kind", "effects", "predicted min", "measured min", "error", "expected F1", "F1")
+    head = ("capture", "kind", "effects", "predicted min", "measured min", "error", "probe dB", "predicted dB",
+            "held-out dB", "expected F1", "F1")
     lines = ["  ".join(head)]
     for r in rows:
         e = r.get("effects") or {}
         effects = "+".join(k for k in ("shadows", "specular") if e.get(k)) + (f" depth {e['max_depth']}" if e else "")
         lines.append("  ".join(str(x) for x in (
             r["capture"], r.get("lighting_kind"), effects or "-", r.get("predicted_minutes"), r.get("measured_minutes"),
-            "-" if r.get("time_error") is None else f"{100 * r['time_error']:+.0f} %", r.get("expected_f1"),
+            "-" if r.get("time_error") is None else f"{100 * r['time_error']:+.0f} %", r.get("probe_psnr"),
+            r.get("predicted_psnr"), r.get("psnr"), r.get("expected_f1"),
             r.get("f1"))))
     return "\n".join(lines)
 
@@ -130,18 +164,22 @@ def table(rows: list[dict]) -> str:
 def add_arguments(parser) -> None:
     parser.add_argument("--out", type=Path, default=REPO / "runs" / "bench-plan", help="work folder")
     parser.add_argument("--preset", default="draft", help="preset to run (default: %(default)s)")
-    parser.add_argument("--captures", default=",".join(CAPTURES),
-                        help="comma-separated, of %(default)s (default: all)")
+    parser.add_argument("--captures", help=f"comma-separated, of {','.join(CAPTURES)} (default: all; "
+                                           f"with --calibrate, of {','.join(TRAINING)})")
+    parser.add_argument("--calibrate", action="store_true",
+                        help="run the training captures and write the preset's accuracy gain (--gains-file)")
+    parser.add_argument("--gains-file", type=Path, default=GAINS_FILE, help="where --calibrate writes (default: %(default)s)")
     parser.add_argument("--iterations", type=int, help="cap every run's steps (a smoke test; default: none)")
     parser.add_argument("--variant", help="Mitsuba variant (default: automatic)")
 
 
 def run(args) -> int:
     emit = Emitter()
-    names = [n.strip() for n in args.captures.split(",") if n.strip()]
-    unknown = [n for n in names if n not in CAPTURES and n not in SMOKE]
+    known = TRAINING if args.calibrate else CAPTURES
+    names = [n.strip() for n in (args.captures or ",".join(known)).split(",") if n.strip()]
+    unknown = [n for n in names if n not in known and n not in SMOKE]
     if unknown:
-        raise InputError(None, f"unknown capture {', '.join(unknown)}", f"choose from {', '.join(CAPTURES)}")
+        raise InputError(None, f"unknown capture {', '.join(unknown)}", f"choose from {', '.join(known)}")
     rows = []
     for i, name in enumerate(names):
         emit("stage", stage=f"plan:{name}", level=i, faces=0)
@@ -153,5 +191,27 @@ def run(args) -> int:
            "preset": args.preset, "rows": rows, "summary": summary(rows)}
     fsio.write_json(args.out / "plan.json", doc)
     print(table(rows), flush=True)
+    if args.calibrate:
+        write_gain(args.gains_file, args.preset, rows, doc)
     emit("done", result=str(args.out / "plan.json"), **doc["summary"])
     return 0 if all(r["rc"] == 0 for r in rows) else 1
+
+
+def write_gain(path: Path, preset: str, rows: list[dict], doc: dict) -> None:
+    """The preset's gain (median over ``rows`` of last held-out PSNR − probe) into ``path``,
+    merged with the entries of other presets already there."""
+    gains = [r["gain_db"] for r in rows if r.get("gain_db") is not None]
+    require(bool(gains), path, "no run gave both a probe and a held-out PSNR", "see the runs' logs")
+    try:
+        old = json.loads(Path(path).read_text())
+    except (OSError, ValueError):
+        old = {}
+    presets = dict(old.get("presets") or {})
+    median = statistics.median(gains)
+    presets[preset] = {"gain_db": round(median, 2), "spread_db": round(max(abs(g - median) for g in gains), 2),
+                       "captures": {r["capture"]: {k: r.get(k) for k in ("probe_psnr", "psnr", "gain_db")} for r in rows},
+                       "code": doc["code"], "measured": doc["measured"], "machine": doc["machine"]}
+    fsio.write_json(path, {"about": "held-out PSNR gain of each preset over the capture's accuracy probe "
+                                    "(optimize/forecast.py); python -m backend bench plan --calibrate --preset P",
+                           "presets": presets})
+    print(f"{preset}: gain {median:+.2f} dB over {len(gains)} captures -> {path}", flush=True)

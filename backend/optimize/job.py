@@ -189,12 +189,22 @@ def _print_plan(args, capture, lighting: str) -> int:
     """--plan: each preset's predicted time on this capture (optimize/plan.py), printed; no run."""
     require(capture is not None, args.capture, "--plan needs a capture folder",
             "write the capture first (capture-from-video), then plan on it")
-    plan = capture_plan(capture, _preset_configs(args, PRESETS), calibrated(kind=lighting_kind(capture, lighting)))
+    from .forecast import probe  # needs the Mitsuba variant (chosen by the caller)
+
+    probed = probe(capture, probe_config(args, lighting))
+    plan = capture_plan(capture, _preset_configs(args, PRESETS), calibrated(kind=lighting_kind(capture, lighting)),
+                        probe=probed)
     print(plan.table())
     print(f"{plan.line()} on this capture (step costs measured in {plan.costs.seconds:.1f} s)", flush=True)
     # the same as one event (docs/protocol.md) for the add-on's Plan button
     Emitter()("plan", line=plan.line(), **plan.to_json())
     return 0
+
+
+def probe_config(args, lighting: str):
+    """The settings of the accuracy probe (optimize/forecast.py): the default preset's with this
+    command line's options, whatever preset runs, so that one probe serves every preset."""
+    return dataclasses.replace(_preset_configs(args, [DEFAULT])[DEFAULT], lighting=lighting)
 
 
 def _preset_event(args, emit, config, capture):
@@ -204,7 +214,7 @@ def _preset_event(args, emit, config, capture):
     the run will use; a resumed run announces it at once, without a plan."""
     preset = choose_preset(args)
 
-    def announce(capture, viewset=None, settings=None, material_settings=None, initial=None) -> None:
+    def announce(capture, viewset=None, settings=None, material_settings=None, initial=None, held=None) -> None:
         # expected_*: the figures of the calibration scene lit as this capture is (point lights or
         # an environment map; null where that kind is not calibrated); predicted_minutes: this
         # capture's own, from its measured step costs (optimize/plan.py)
@@ -213,13 +223,18 @@ def _preset_event(args, emit, config, capture):
         expected = entries.get(preset, {})
         plan = None
         if settings is not None:
+            from .forecast import probe  # the planner runs once the variant is chosen
+
+            probed = probe(capture, probe_config(args, config.lighting), held)
             plan = make_plan(capture, {preset: config}, settings, staged=config.material == "staged",
                              calibration=entries, viewset=viewset, material_settings=material_settings,
-                             initial=initial)
+                             initial=initial, probe=probed)
         emit("preset", preset=preset, chosen_for_budget=args.preset is None and args.time_budget is not None,
              expected_minutes=expected.get("expected_minutes"), expected_f1=expected.get("expected_f1"),
              calibrated_on=calibration_scene(kind), lighting_kind=kind,
              predicted_minutes=None if plan is None else round(plan.presets[preset].minutes, 2),
+             predicted_psnr=None if plan is None else plan.presets[preset].predicted_psnr,
+             probe=None if plan is None else plan.probe,
              plan=None if plan is None else {**plan.presets[preset].to_json(), "costs": plan.costs.to_json(),
                                              "render_settings": plan.settings},
              note=None if expected else f"no calibration scene lit as this capture is ({kind}); the time "

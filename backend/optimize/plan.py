@@ -30,21 +30,21 @@ budget or an iteration cap cuts the prediction where the run would stop.
 A run plans its ``preset`` event with the effects it decided (``reconstruct``'s planner);
 ``--plan`` decides nothing and times the likely settings (``geometry_settings``). Shadow
 gradients are charged at the samples a level keeps (``optimize.shadow_samples``). Step counts
-come from the calibration scene lit as the capture is; a re-mesh is left out. ``bench plan``
-compares predicted and measured times (docs/results.md, "Predicted time")."""
+come from the calibration scene lit as the capture is; a re-mesh is left out. Each preset's
+held-out PSNR comes from optimize/forecast.py. ``bench plan`` compares predicted and measured
+(docs/results.md, "Predicted time")."""
 
 from __future__ import annotations
 
 import dataclasses
-import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
 from ..geometry.simplify import FaceBudget
 from .schedule import level_size
-from .shadow_samples import charged_seconds
-from .views import frame_size, validation_views
+from .step_costs import MAX_PROBE_FACES, Point, StepCosts, fit, measure, pixels_for, probe_mesh  # noqa: F401 (the plan's API)
+from .views import validation_views
 
 FIXED_SECONDS = 15.0  # process start, loading, initial mesh, effects decision, snapshots, outputs
 # means over staged Draft runs (docs/results.md, "Predicted time"): these end on their own
@@ -55,60 +55,6 @@ POLISH_STEPS = 170  # steps per polish round (at most level_iterations x polish_
 MATERIAL_ITERATIONS = 40  # FitSettings.iterations
 # a material iteration's own work beyond render and gradient (Adam, smoothness, highlight weights)
 MATERIAL_OVERHEAD_S = 0.03
-MAX_PROBE_FACES = 20480  # larger face counts are extrapolated (a probe step there costs seconds)
-
-
-@dataclass
-class Point:
-    """One measured point: seconds per view of each kind of step."""
-
-    size: int
-    pixels: int
-    faces: int
-    gradient: float
-    forward: float
-    material: float
-
-    def to_json(self) -> dict:
-        return {k: round(v, 4) if isinstance(v, float) else v for k, v in dataclasses.asdict(self).items()}
-
-
-@dataclass
-class StepCosts:
-    """Seconds per view as a + b * pixels + c * faces, for each kind of step."""
-
-    points: list[Point]
-    coefficients: dict[str, tuple[float, float, float]] = field(default_factory=dict)
-    seconds: float = 0.0  # what measuring took
-
-    def __post_init__(self):
-        if not self.coefficients:
-            self.coefficients = {k: fit([(p.pixels, p.faces, getattr(p, k)) for p in self.points])
-                                 for k in ("gradient", "forward", "material")}
-
-    def __call__(self, kind: str, pixels: float, faces: float) -> float:
-        a, b, c = self.coefficients[kind]
-        return a + b * pixels + c * faces
-
-    def to_json(self) -> dict:
-        return {"points": [p.to_json() for p in self.points], "seconds": round(self.seconds, 2),
-                "model": {k: [float(f"{x:.4g}") for x in v] for k, v in self.coefficients.items()}}
-
-
-def fit(samples: list[tuple[float, float, float]]) -> tuple[float, float, float]:
-    """(a, b, c) of t ~ a + b p + c f by least squares, with b, c >= 0 and a >= 0 (a term that
-    comes out negative is dropped and the rest refitted). Fewer than three distinct points fit
-    fewer terms."""
-    p, f, t = (np.array(x, np.float64) for x in zip(*samples))
-    terms = [0] + [i for i, x in ((1, p), (2, f)) if len(set(x.tolist())) >= 2]
-    columns = np.stack([np.ones_like(p), p, f], 1)
-    while True:
-        coef = np.zeros(3)
-        coef[terms] = np.linalg.lstsq(columns[:, terms], t, rcond=None)[0]
-        negative = [i for i in terms if coef[i] < 0]
-        if not negative or len(terms) == 1:
-            return tuple(float(max(x, 0.0)) for x in coef)
-        terms.remove(min(negative, key=lambda i: coef[i]))
 
 
 # -- the levels a preset goes through ------------------------------------------------------------------
@@ -161,6 +107,7 @@ class PresetPlan:
     fixed_s: float
     budget_s: float | None = None
     expected_f1: float | None = None  # on the calibration scene
+    predicted_psnr: float | None = None  # held-out, from this capture's probe (optimize/forecast.py)
 
     @property
     def unbounded_seconds(self) -> float:
@@ -185,7 +132,7 @@ class PresetPlan:
                 "geometry_s": round(self.geometry_s, 1), "material_s": round(self.material_s, 1),
                 "polish_s": round(self.polish_s, 1), "fixed_s": round(self.fixed_s, 1),
                 "levels": [lv.to_json() for lv in self.levels], "steps_from": self.steps_from,
-                "expected_f1": self.expected_f1}
+                "expected_f1": self.expected_f1, "predicted_psnr": self.predicted_psnr}
 
 
 def predict(name: str, config, costs: StepCosts, pixels_at, n_views: int, staged: bool,
@@ -243,101 +190,31 @@ def probe_points(configs, pixels_at) -> tuple[list[int], list[int]]:
     return sorted({sizes[0], sizes[-1]}), spheres
 
 
-def probe_mesh(capture, faces: int, initial=None):
-    """About ``faces`` faces of ``initial`` (the run's initial mesh, split 1-to-4 while that comes
-    nearer: its concavities cost shadow and indirect rays a sphere has not), else an icosphere."""
-    from ..geometry.init.sphere import sphere_mesh
-    from ..geometry.subdivide import midpoint
-
-    if initial is None:
-        return sphere_mesh(capture, faces)
-    while initial.n_faces * 2 < faces:
-        initial = midpoint(initial)[0]
-    return initial
-
-
-def measure(capture, viewset, settings, sizes: list[int], faces: list[int], tone: str = "log",
-            validation_spp: int = 16, repeats: int = 3, material_settings=None, initial=None) -> StepCosts:
-    """Time one view's geometry step, validation render and material step at every (size,
-    faces) of ``sizes`` x ``faces`` on this capture with ``settings`` (RenderSettings of the
-    geometry steps; the material step with ``material_settings``, default the same), with the
-    estimated constant material, on ``probe_mesh`` of ``initial``."""
-    import drjit as dr
-
-    from ..material import factory
-    from .appearance import lit_environment
-    from .objective import Objective
-
-    start = time.perf_counter()
-    material = factory.create("auto")  # the estimated constant material: trainable, as the material steps need
-    environment = lit_environment(capture, material)
-    first = len(viewset) // 2
-    pair = [0, 1] if len(viewset) > 1 else [0]  # a step renders views_per_step views: time two, per view
-    points = []
-    for n_faces in faces:
-        mesh = probe_mesh(capture, n_faces, initial)
-        for size in sizes:
-            views = (viewset.at(size)[first:] + viewset.at(size))[:len(pair)]
-            objective = Objective(mesh, material, views, settings, environment, tone=tone)
-
-            def timed(call) -> float:
-                # the median of ``repeats`` steps (5 while short): another process's burst slows single steps
-                times = []
-                while len(times) < repeats or (len(times) < 5 and sum(times) < 1.0):
-                    t0 = time.perf_counter()
-                    call(len(times))
-                    times.append(time.perf_counter() - t0)
-                return float(np.median(times))
-
-            def step(seed):
-                return objective.loss_and_grad(mesh.vertices, pair, seed, geometry=True, material=True)
-            step(7)  # compiles
-            gradient = timed(step) / len(pair)
-            if settings.sppi > 0:  # charged at the samples a level keeps (optimize.shadow_samples)
-                objective.set_shadow_samples(0)
-                step(7)
-                gradient = charged_seconds(gradient, timed(step) / len(pair), settings.sppi)
-            forward = timed(lambda s: objective.loss(mesh.vertices, pair, s, max(1, validation_spp // 2))) / len(pair)
-            if material_settings is not None and material_settings != settings:
-                del objective
-                objective = Objective(mesh, material, views, material_settings, environment, tone=tone)
-            objective.loss_and_grad(mesh.vertices, [0], 7, geometry=False, material=True)
-            mat = timed(lambda s: objective.loss_and_grad(mesh.vertices, [0], s, geometry=False, material=True))
-            w, h = views[0].camera.width, views[0].camera.height
-            points.append(Point(size, w * h, mesh.n_faces, gradient, forward, mat))
-            del objective
-            dr.flush_malloc_cache()
-    return StepCosts(points, seconds=time.perf_counter() - start)
-
-
-def pixels_for(viewset):
-    """One view's pixels at a level size (the middle view, as measured)."""
-    camera = viewset.views[len(viewset) // 2].camera
-    return lambda size: int(np.prod(frame_size(camera, size)))
-
-
 @dataclass
 class Plan:
     costs: StepCosts
     presets: dict[str, PresetPlan]
     settings: dict
+    probe: dict | None = None  # forecast.probe's measurement, the predicted PSNRs' start
 
     def to_json(self) -> dict:
-        return {"costs": self.costs.to_json(), "render_settings": self.settings,
+        return {"costs": self.costs.to_json(), "render_settings": self.settings, "probe": self.probe,
                 "presets": {n: p.to_json() for n, p in self.presets.items()}}
 
     def line(self) -> str:
-        """'Draft ≈ 3 min, Balanced ≈ 14 min, Final ≈ 40 min'"""
+        """'Draft ≈ 3 min (≈ 24 dB), Balanced ≈ 14 min (≈ 26 dB), Final ≈ 40 min'"""
         return ", ".join(f"{n.capitalize()} \u2248 {minutes_text(p.minutes)}{' (budget)' if p.capped else ''}"
+                         + ("" if p.predicted_psnr is None else f" (\u2248 {p.predicted_psnr:.0f} dB)")
                          for n, p in self.presets.items())
 
     def table(self) -> str:
-        rows = [("preset", "levels", "sizes px", "faces", "steps", "predicted min", "F1 (calibration)")]
+        rows = [("preset", "levels", "sizes px", "faces", "steps", "predicted min", "held-out dB", "F1 (calibration)")]
         for name, p in self.presets.items():
             sizes = sorted({lv.size for lv in p.levels})
             rows.append((name, str(len(p.levels)), f"{sizes[0]}-{sizes[-1]}" if sizes else "-",
                          f"{p.levels[0].faces}-{p.levels[-1].faces}" if p.levels else "-",
                          str(sum(lv.steps for lv in p.levels)), f"{p.minutes:.1f}" + (" (budget)" if p.capped else ""),
+                         "-" if p.predicted_psnr is None else f"{p.predicted_psnr:.1f}",
                          "-" if p.expected_f1 is None else f"{p.expected_f1:.3f}"))
         widths = [max(len(r[i]) for r in rows) for i in range(len(rows[0]))]
         return "\n".join("  ".join(x.ljust(w) for x, w in zip(r, widths)).rstrip() for r in rows)
@@ -348,10 +225,12 @@ def minutes_text(minutes: float) -> str:
 
 
 def make_plan(capture, configs: dict, settings, staged: bool, calibration: dict | None = None,
-              viewset=None, material_settings=None, initial=None) -> Plan:
+              viewset=None, material_settings=None, initial=None, probe: dict | None = None) -> Plan:
     """Measure this capture's step costs and predict every preset of ``configs`` ({name:
     ReconstructConfig}); ``settings``: the geometry steps' RenderSettings; ``calibration``:
-    {preset: calibration entry}; ``initial``: the run's initial mesh (None: icospheres)."""
+    {preset: calibration entry}; ``initial``: the run's initial mesh (None: icospheres);
+    ``probe``: forecast.probe's measurement, for each preset's predicted held-out PSNR."""
+    from .forecast import load_gains, predicted_psnr
     from .views import ViewSet
 
     largest = max(c.max_size for c in configs.values())
@@ -363,7 +242,11 @@ def make_plan(capture, configs: dict, settings, staged: bool, calibration: dict 
                     material_settings=material_settings if staged else None, initial=initial)
     presets = {name: predict(name, c, costs, pixels_at, len(viewset), staged, (calibration or {}).get(name))
                for name, c in configs.items()}
-    return Plan(costs, presets, dataclasses.asdict(settings))
+    gains = load_gains()
+    for name, p in presets.items():
+        p.predicted_psnr = predicted_psnr(probe, name, gains)
+        p.fixed_s += (probe or {}).get("seconds", 0.0)  # a run probes again before its first step
+    return Plan(costs, presets, dataclasses.asdict(settings), probe)
 
 
 # -- for the reconstruct command -----------------------------------------------------------------------
@@ -390,9 +273,10 @@ def geometry_settings(config, capture=None, geometry: bool = True) -> "RenderSet
     return decision.settings(base, geometry=geometry)
 
 
-def capture_plan(capture, configs: dict, calibration: dict | None = None) -> Plan:
+def capture_plan(capture, configs: dict, calibration: dict | None = None, probe: dict | None = None) -> Plan:
     """``make_plan`` for the reconstruct command: ``configs`` {preset: ReconstructConfig}, the
     staged material when the first config asks for it."""
     first = next(iter(configs.values()))
     return make_plan(capture, configs, geometry_settings(first, capture), staged=first.material == "staged",
-                     calibration=calibration, material_settings=geometry_settings(first, capture, geometry=False))
+                     calibration=calibration, material_settings=geometry_settings(first, capture, geometry=False),
+                     probe=probe)

@@ -71,7 +71,7 @@ def reconstruct(capture: Capture, out: RunFolder, config: ReconstructConfig, eve
         objective_factory: builds each level's objective, called as ``Objective`` is (tests
             wrap the real one to record every step).
         planner: called as ``planner(capture, viewset, geometry_settings, material_settings,
-            initial_mesh)`` once a new run has decided its effects, before its first step (the
+            initial_mesh, held)`` once a new run has decided its effects, before its first step (the
             command times this capture's steps there: optimize/plan.py); its time is not
             charged to the budget.
     Raises InputError on bad input; cancellation returns exit code 130."""
@@ -160,7 +160,8 @@ class Reconstruction:
         if self.planner is not None:
             with self.budget.uncharged():
                 self.planner(self.capture, self.viewset, self.settings(),
-                             self.appearance.material_settings(RenderSettings.for_geometry(c)), s.mesh)
+                             self.appearance.material_settings(RenderSettings.for_geometry(c)), s.mesh,
+                             self.accuracy.held)
         report = inspect(s.mesh)
         s.init = {"kind": kind, "faces": s.mesh.n_faces, "genus": report.genus,
                   "seconds": round(time.perf_counter() - start, 3)}

@@ -1,0 +1,93 @@
+"""Predicted held-out accuracy of each preset on *this* capture, measured before optimising.
+
+How well a run will render views it never fitted depends on the capture more than on the
+preset: its textures, its noise, how far the visual hull is from the object. One calibration
+scene cannot know that (the dragon's held-out PSNR says nothing about a textured teacup), so
+the prediction starts from a measurement on the capture itself:
+
+    probe            = held-out PSNR of the run's initial mesh with its first material
+                       cycles fitted (the constant stage, then one diffuse cycle, at the
+                       coarse size, under the run's lighting: captured, or estimated / flash
+                       fitted with it as the run fits it)
+    predicted(preset) = probe + gain(preset)
+
+``probe`` measures what the capture's appearance allows on the starting shape; ``gain`` is
+what the preset's geometry levels, finer textures and specular stage add on top of that,
+calibrated as the median over captures that are not used to test the prediction
+(``GAINS``; ``bench plan`` compares predicted and measured on five others). Held-out views
+are those ``--track-accuracy`` scores (``accuracy.split``: the capture's ground-truth held-out
+views, else every ``held_out_every``-th view, left out of the probe's fit), rendered as the
+tracker renders them, so that the prediction and the run's ``accuracy_time`` measure the same
+thing. The probe runs on copies: the run's material, lighting and capture are not touched."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import tempfile
+import time
+from pathlib import Path
+
+PROBE_CYCLES = 8  # most material cycles the probe runs (the constant stage ends sooner: MaterialSchedule)
+GAINS_FILE = Path(__file__).resolve().parents[1] / "forecast.json"  # written by ``bench plan --calibrate``
+
+
+def probe(capture, config, held=None) -> dict | None:
+    """The probe's held-out PSNR on ``capture``, or None when nothing can be held out or the
+    material is not the staged one (the gains are calibrated with it). ``config``: the probe's
+    settings (``job.probe_config``); ``held``: the views (``accuracy.HeldOut``) a run already holds out of ``capture``
+    (``--track-accuracy``), else the probe holds out the same ones itself. The initial mesh is
+    made as the run makes it, from the fitted views only. Returns {"psnr", "seconds", "views",
+    "source", "cycles", "faces"}."""
+    from ..geometry.init import initial_mesh  # these need the Mitsuba variant chosen (the plan's caller does)
+    from . import accuracy
+    from .appearance import Appearance
+    from .views import ViewSet
+
+    if config.material != "staged":
+        return None
+    start = time.perf_counter()
+    config = dataclasses.replace(config, track_accuracy=True)
+    if held is None or held.capture is None:
+        capture, held = accuracy.split(dataclasses.replace(capture), config)
+        if held.capture is None:
+            return None
+    fit = dataclasses.replace(capture)  # the lighting fit sets its environment on this copy only
+    mesh, _ = initial_mesh(fit, config.init, config.initial_faces)
+    appearance = Appearance(fit, config, emit=lambda *a, **k: {})
+    with tempfile.TemporaryDirectory(prefix="sft-probe-") as folder:
+        appearance.start_lighting(Path(folder))
+        views = ViewSet(fit, config.max_size).at(config.coarse_size)
+        material = appearance.initial_material(mesh, views)
+        appearance.light_first(mesh, material, views)
+        cycles = 0
+        while cycles < PROBE_CYCLES and appearance.driver.stage == "constant":
+            appearance.material_cycle(mesh, material, views, level=0)
+            cycles += 1
+        if appearance.driver.stage == "diffuse":
+            appearance.material_cycle(mesh, material, views, level=0)
+            cycles += 1
+        tracker = accuracy.AccuracyTracker(held, config)
+        point = tracker.score(mesh, material, appearance.lighting, level=0, phase="probe", why="probe",
+                              validation_loss=None, folder=Path(folder))
+    return {"psnr": point["psnr"], "seconds": round(time.perf_counter() - start, 2), "views": point["views"],
+            "source": held.source, "cycles": cycles, "faces": mesh.n_faces}
+
+
+def load_gains(path: Path = GAINS_FILE) -> dict:
+    """{preset: {"gain_db", ...}} from the calibration file, {} when absent or unreadable."""
+    try:
+        doc = json.loads(Path(path).read_text())
+    except (OSError, ValueError):
+        return {}
+    presets = doc.get("presets") if isinstance(doc, dict) else None
+    return {k: v for k, v in (presets or {}).items() if isinstance(v, dict) and isinstance(v.get("gain_db"), (int, float))}
+
+
+def predicted_psnr(probed: dict | None, preset: str, gains: dict | None = None) -> float | None:
+    """The held-out PSNR ``preset`` is expected to reach: the probe's plus the preset's gain
+    (None without a probe or a calibrated gain)."""
+    gains = load_gains() if gains is None else gains
+    if probed is None or preset not in gains:
+        return None
+    return round(probed["psnr"] + float(gains[preset]["gain_db"]), 2)

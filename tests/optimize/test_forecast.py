@@ -1,0 +1,90 @@
+"""The accuracy probe and the predicted held-out PSNR (optimize/forecast.py), on real renders:
+the probe's figure is the tracker's, on a copy of the capture; the prediction is probe + gain;
+a run's ``preset`` event and ``--plan`` carry it."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import pytest
+
+from backend.optimize import forecast
+from tests.helpers import run_cli
+
+
+@pytest.fixture(scope="module")
+def tiny(tiny_capture):
+    from backend import variant
+
+    variant.choose()
+    from backend.capture.load import load_capture
+    from backend.optimize.config import ReconstructConfig
+
+    config = ReconstructConfig(max_size=48, coarse_size=24, initial_faces=500, material="staged")
+    return load_capture(tiny_capture), config
+
+
+def test_the_probe_scores_the_held_out_views_as_the_tracker_does(tiny):
+    capture, config = tiny
+    before = (len(capture.frames), capture.environment)
+    probed = forecast.probe(capture, config)
+    assert probed is not None and probed["source"] == "ground truth" and probed["views"] == 2
+    assert 12.0 < probed["psnr"] < 45.0  # a fitted grey-to-diffuse material on the visual hull
+    assert probed["cycles"] >= 2 and probed["faces"] <= 500 and probed["seconds"] > 0
+    assert (len(capture.frames), capture.environment) == before  # the capture is not touched
+
+
+def test_the_probe_is_repeatable_and_needs_held_out_views_and_the_staged_material(tiny):
+    capture, config = tiny
+    a, b = forecast.probe(capture, config), forecast.probe(capture, config)
+    assert a["psnr"] == pytest.approx(b["psnr"], abs=0.05)  # seeded renders and fits
+    assert forecast.probe(capture, dataclasses.replace(config, material="auto")) is None
+    bare = dataclasses.replace(capture, ground_truth=None)  # 8 views: too few to hold out every 8th
+    assert forecast.probe(bare, config) is None
+
+
+def test_the_prediction_is_the_probe_plus_the_presets_gain(tmp_path):
+    path = tmp_path / "forecast.json"
+    assert forecast.load_gains(path) == {}  # absent: nothing predicted
+    path.write_text(json.dumps({"presets": {"draft": {"gain_db": 2.5}, "final": {"gain_db": "?"}}}))
+    gains = forecast.load_gains(path)
+    assert set(gains) == {"draft"}
+    assert forecast.predicted_psnr({"psnr": 20.0}, "draft", gains) == 22.5
+    assert forecast.predicted_psnr({"psnr": 20.0}, "balanced", gains) is None
+    assert forecast.predicted_psnr(None, "draft", gains) is None
+
+
+def test_the_shipped_gains_name_their_captures_and_code():
+    gains = forecast.load_gains()
+    assert gains, "backend/forecast.json: run python -m backend bench plan --calibrate --preset draft"
+    for entry in gains.values():
+        assert len(entry["captures"]) >= 4 and entry["spread_db"] >= 0 and entry["code"]
+        median = sorted(c["gain_db"] for c in entry["captures"].values())
+        assert min(median) <= entry["gain_db"] <= max(median)
+
+
+def test_plan_and_preset_event_carry_the_predicted_psnr(tiny_capture, tmp_path):
+    settings = json.dumps({"max_size": 48, "coarse_size": 24, "initial_faces": 500})
+    env = {"SFT_RECONSTRUCT_SETTINGS": settings}
+    proc = run_cli("reconstruct", tiny_capture, "--out", tmp_path / "plan", "--plan", env=env, timeout=300)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    event = json.loads(proc.stdout.strip().splitlines()[-1])
+    assert event["probe"]["psnr"] > 0
+    gains = forecast.load_gains()
+    for name, p in event["presets"].items():
+        expected = forecast.predicted_psnr(event["probe"], name, gains)
+        assert p["predicted_psnr"] == expected
+        if expected is not None:
+            assert f"\u2248 {expected:.0f} dB" in event["line"]
+    run = tmp_path / "run"
+    proc = run_cli("reconstruct", tiny_capture, "--out", run, "--preset", "draft", "--iterations", 4,
+                   "--track-accuracy", env=env, timeout=300)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    events = [json.loads(line) for line in (run / "events.jsonl").read_text().splitlines()]
+    preset = next(e for e in events if e["event"] == "preset")
+    assert preset["probe"]["views"] == 2 and preset["predicted_psnr"] == forecast.predicted_psnr(
+        preset["probe"], "draft", gains)
+    # the run's own held-out series scores the same views at the same size
+    report = json.loads((run / "report.json").read_text())
+    assert report["accuracy_time"]["scored_views"] and report["accuracy_time"]["size"] == 48
+    assert preset["plan"]["fixed_s"] >= preset["probe"]["seconds"]  # a run probes before its clock starts
