@@ -115,8 +115,14 @@ class SFT_PT_reconstruct(_Panel, bpy.types.Panel):
             row.label(text="Measuring this capture's step costs...", icon="TIME")
             row.operator("sft.plan_cancel", text="", icon="CANCEL")
         else:
-            row.label(text=sft.plan_text or "This capture: press Plan", icon="TIME")
+            # one line per preset: the whole plan does not fit the sidebar's width
+            parts = sft.plan_text.split(", ") if sft.plan_text else ["This capture: press Plan"]
+            row.label(text=parts[0], icon="TIME")
             row.operator("sft.plan", text="Plan", icon="PREVIEW_RANGE")
+            for part in parts[1:]:
+                box.label(text=part, icon="BLANK1")
+            if " dB)" in sft.plan_text:
+                box.label(text="dB: predicted PSNR of views the run never fits", icon="INFO")
         col.prop(sft, "time_budget", text="Time Budget (min, 0 = until converged)")
         col.prop(sft, "track_accuracy")
         col.prop(sft, "material")

@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import bpy
 
+from backend.optimize import forecast
+
 from .test_panels import draw
 
 
@@ -19,7 +21,11 @@ def test_plan_button_shows_each_presets_time_on_this_capture(context, tiny_captu
     assert text.endswith("on this capture")
     minutes = [float(part.split("\u2248 ")[1].split(" min")[0]) for part in text.split(", ")]
     assert 0 < minutes[0] < minutes[1] < minutes[2], text
-    assert ("label", text) in draw("SFT_PT_reconstruct", context)
+    log = draw("SFT_PT_reconstruct", context)
+    assert all(("label", part) in log for part in text.split(", ")), log  # one line per preset
+    if forecast.load_gains():  # each preset's predicted held-out PSNR from this capture's probe
+        assert text.count(" dB)") >= 1, text
+        assert ("label", "dB: predicted PSNR of views the run never fits") in log
     assert not (tiny_capture / "runs").exists(), "--plan writes nothing"
     sft.time_budget = minutes[1] / 2  # a budget ends the longer presets: said so
     assert bpy.ops.sft.plan() == {"FINISHED"}
