@@ -108,6 +108,7 @@ class PresetPlan:
     budget_s: float | None = None
     expected_f1: float | None = None  # on the calibration scene
     predicted_psnr: float | None = None  # held-out, from this capture's probe (optimize/forecast.py)
+    psnr_spread: float | None = None  # the calibration captures' largest distance from their median gain
 
     @property
     def unbounded_seconds(self) -> float:
@@ -132,7 +133,7 @@ class PresetPlan:
                 "geometry_s": round(self.geometry_s, 1), "material_s": round(self.material_s, 1),
                 "polish_s": round(self.polish_s, 1), "fixed_s": round(self.fixed_s, 1),
                 "levels": [lv.to_json() for lv in self.levels], "steps_from": self.steps_from,
-                "expected_f1": self.expected_f1, "predicted_psnr": self.predicted_psnr}
+                "expected_f1": self.expected_f1, "predicted_psnr": self.predicted_psnr, "psnr_spread": self.psnr_spread}
 
 
 def predict(name: str, config, costs: StepCosts, pixels_at, n_views: int, staged: bool,
@@ -202,9 +203,10 @@ class Plan:
                 "presets": {n: p.to_json() for n, p in self.presets.items()}}
 
     def line(self) -> str:
-        """'Draft ≈ 3 min (≈ 24 dB), Balanced ≈ 14 min (≈ 26 dB), Final ≈ 40 min'"""
+        """'Draft ≈ 3 min (≈ 24 ± 3 dB), Balanced ≈ 14 min (≈ 26 ± 2 dB), Final ≈ 40 min'"""
         return ", ".join(f"{n.capitalize()} \u2248 {minutes_text(p.minutes)}{' (budget)' if p.capped else ''}"
-                         + ("" if p.predicted_psnr is None else f" (\u2248 {p.predicted_psnr:.0f} dB)")
+                         + ("" if p.predicted_psnr is None else f" (\u2248 {p.predicted_psnr:.0f}"
+                            + ("" if p.psnr_spread is None else f" \u00b1 {p.psnr_spread:.0f}") + " dB)")
                          for n, p in self.presets.items())
 
     def table(self) -> str:
@@ -245,6 +247,7 @@ def make_plan(capture, configs: dict, settings, staged: bool, calibration: dict 
     gains = load_gains()
     for name, p in presets.items():
         p.predicted_psnr = predicted_psnr(probe, name, gains)
+        p.psnr_spread = gains.get(name, {}).get("spread_db") if p.predicted_psnr is not None else None
         p.fixed_s += (probe or {}).get("seconds", 0.0)  # a run probes again before its first step
     return Plan(costs, presets, dataclasses.asdict(settings), probe)
 

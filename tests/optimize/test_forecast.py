@@ -74,8 +74,9 @@ def test_plan_and_preset_event_carry_the_predicted_psnr(tiny_capture, tmp_path):
     for name, p in event["presets"].items():
         expected = forecast.predicted_psnr(event["probe"], name, gains)
         assert p["predicted_psnr"] == expected
-        if expected is not None:
-            assert f"\u2248 {expected:.0f} dB" in event["line"]
+        if expected is not None:  # "Draft ≈ 2.1 min (≈ 24 ± 3 dB)"
+            assert f"\u2248 {expected:.0f} \u00b1 {gains[name]['spread_db']:.0f} dB)" in event["line"]
+            assert p["psnr_spread"] == gains[name]["spread_db"]
     run = tmp_path / "run"
     proc = run_cli("reconstruct", tiny_capture, "--out", run, "--preset", "draft", "--iterations", 4,
                    "--track-accuracy", env=env, timeout=300)
