@@ -8,7 +8,7 @@ views are left out of everything the run fits (initialisation, geometry, materia
 validation). Too few views to hold any out: not tracked, with a warning.
 
 ``AccuracyTracker`` scores up to ``accuracy_views`` of them, at ``accuracy_size`` px and
-``accuracy_spp`` spp with the current mesh and material under the run's fitted lighting
+``accuracy_spp`` spp (x ``ENV_SPP_FACTOR`` under an environment map) with the current mesh and material under the run's fitted lighting
 (backend.lighting.fitted, as ``evaluate`` renders them: the views' own lights x the light
 factor, the estimated map, or the flash at each view's camera), every ``accuracy_every_s``
 seconds of run time and at every level's and stage's end: the mean PSNR on sRGB within the
@@ -37,6 +37,9 @@ from . import accuracy_figure
 from .views import ViewSet
 
 FIGURE = "accuracy_time.png"
+# samples per pixel x this when an environment map lights the views: a map lights each point
+# from every direction, and at the point-lit count the renders' own noise caps the score
+ENV_SPP_FACTOR = 8
 SEED = 7_000_003  # fixed render seeds: two scores differ only through mesh and material
 
 
@@ -105,6 +108,7 @@ class AccuracyTracker:
     scoring_seconds: float = 0.0
     _views: list | None = None
     _map: tuple = (None, None)  # (path, pixels) of the captured environment map, read once
+    spp: int | None = None  # of the last score (spp_for)
 
     @property
     def enabled(self) -> bool:
@@ -139,6 +143,10 @@ class AccuracyTracker:
         """Long side of the scored images: accuracy_size, at most the run's finest size."""
         return min(self.config.accuracy_size, self.config.max_size)
 
+    def spp_for(self, environment) -> int:
+        """The scores' samples per pixel: ``accuracy_spp``, x ENV_SPP_FACTOR under an environment map."""
+        return self.config.accuracy_spp * (ENV_SPP_FACTOR if environment is not None else 1)
+
     def _pixels(self, env):
         """The map's pixels when they come from a file (read once), else None."""
         if env is None or env.pixels is not None:
@@ -156,9 +164,10 @@ class AccuracyTracker:
         c, views = self.config, self.views()
         lit = fitted.light_views(self.held.capture, fitted.from_live(lighting, material))
         lights = {f.name: f.lights for f in lit.frames}
+        self.spp = self.spp_for(lit.environment)
         renderer = SceneRenderer(mesh, material.field, [v.camera for v in views], [lights[v.name] for v in views],
                                  lit.environment,
-                                 RenderSettings(spp=c.accuracy_spp, max_depth=c.max_depth, integrator="path"),
+                                 RenderSettings(spp=self.spp, max_depth=c.max_depth, integrator="path"),
                                  env_pixels=self._pixels(lit.environment))
         scores = [psnr(renderer.render_numpy(i, seed=SEED + i)[..., :3], v.target, v.mask)
                   for i, v in enumerate(views)]
@@ -175,7 +184,7 @@ class AccuracyTracker:
     def title(self) -> str:
         c = self.config
         return (f"held-out PSNR (dB): {len(self.views())} views ({self.held.source}), {self.size} px, "
-                f"{c.accuracy_spp} spp")
+                f"{self.spp or c.accuracy_spp} spp")
 
     # -- resume --------------------------------------------------------------------------------
     def state(self) -> dict | None:
@@ -212,7 +221,7 @@ class AccuracyTracker:
         c = self.config
         return {"tracked": True, "source": self.held.source, "fitted_views": self.held.fitted,
                 "held_out_views": [f.name for f in self.held.capture.frames],
-                "scored_views": [v.name for v in self.views()], "size": self.size, "spp": c.accuracy_spp,
+                "scored_views": [v.name for v in self.views()], "size": self.size, "spp": self.spp or c.accuracy_spp,
                 "every_s": c.accuracy_every_s, "scoring_seconds": round(self.scoring_seconds, 3),
                 "points": self.points, "marks": self.marks, "level_gains": self.level_gains(),
                 "figure": FIGURE, "caption": accuracy_figure.CAPTION}

@@ -136,6 +136,9 @@ def test_the_score_follows_the_material_and_too_few_views_are_not_held_out(plain
     assert same is few and nothing.capture is None and "too few" in nothing.note
     off, none = accuracy.split(capture, ReconstructConfig())
     assert off is capture and none.capture is None and none.note is None  # not asked for: nothing changes
+    # point lights: the configured samples; an environment map lights from every direction: more
+    assert tracker.spp == config.accuracy_spp == tracker.spp_for(None)
+    assert tracker.spp_for(object()) == accuracy.ENV_SPP_FACTOR * config.accuracy_spp
 
 
 def test_a_time_budget_says_what_the_next_level_was_expected_to_buy():
