@@ -191,7 +191,7 @@ def _print_plan(args, capture, lighting: str) -> int:
             "write the capture first (capture-from-video), then plan on it")
     from .forecast import probe  # needs the Mitsuba variant (chosen by the caller)
 
-    probed = probe(capture, probe_config(args, lighting))
+    probed = safe_probe(probe, capture, probe_config(args, lighting), warn=lambda m: print(f"warning: {m}", flush=True))
     plan = capture_plan(capture, _preset_configs(args, PRESETS), calibrated(kind=lighting_kind(capture, lighting)),
                         probe=probed)
     print(plan.table())
@@ -205,6 +205,16 @@ def probe_config(args, lighting: str):
     """The settings of the accuracy probe (optimize/forecast.py): the default preset's with this
     command line's options, whatever preset runs, so that one probe serves every preset."""
     return dataclasses.replace(_preset_configs(args, [DEFAULT])[DEFAULT], lighting=lighting)
+
+
+def safe_probe(probe, capture, config, held=None, warn=print):
+    """``probe(capture, config, held)``, or None with a warning when it fails: a prediction
+    that cannot be made must not stop the run it predicts."""
+    try:
+        return probe(capture, config, held)
+    except (InputError, RuntimeError, ValueError) as err:
+        warn(f"no predicted accuracy: the probe failed ({err})")
+        return None
 
 
 def _preset_event(args, emit, config, capture):
@@ -225,7 +235,8 @@ def _preset_event(args, emit, config, capture):
         if settings is not None:
             from .forecast import probe  # the planner runs once the variant is chosen
 
-            probed = probe(capture, probe_config(args, config.lighting), held)
+            probed = safe_probe(probe, capture, probe_config(args, config.lighting), held,
+                                warn=lambda m: emit("warning", message=m))
             plan = make_plan(capture, {preset: config}, settings, staged=config.material == "staged",
                              calibration=entries, viewset=viewset, material_settings=material_settings,
                              initial=initial, probe=probed)

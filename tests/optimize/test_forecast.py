@@ -89,3 +89,16 @@ def test_plan_and_preset_event_carry_the_predicted_psnr(tiny_capture, tmp_path):
     report = json.loads((run / "report.json").read_text())
     assert report["accuracy_time"]["scored_views"] and report["accuracy_time"]["size"] == 48
     assert preset["plan"]["fixed_s"] >= preset["probe"]["seconds"]  # a run probes before its clock starts
+
+
+def test_a_failing_probe_leaves_the_run_without_a_prediction():
+    """The run goes on without a predicted PSNR, and says why."""
+    from backend.errors import InputError
+    from backend.optimize.job import safe_probe
+
+    def failing(capture, config, held):
+        raise InputError(None, "the visual hull is empty", "check the masks")
+
+    warnings = []
+    assert safe_probe(failing, None, None, warn=warnings.append) is None
+    assert len(warnings) == 1 and "probe failed" in warnings[0] and "visual hull is empty" in warnings[0]
