@@ -32,6 +32,7 @@ class RunState:
     smoothing: str = ""  # the vertex steps' Large Steps smoothing, from the `stiffness` event
     done: dict = field(default_factory=dict)  # the `done` event
     accuracy: list = field(default_factory=list)  # (seconds, held-out PSNR) of the `accuracy` events
+    predicted: str = ""  # the held-out PSNR the `preset` event predicted, e.g. '24 ± 3 dB'
     started: float = field(default_factory=time.monotonic)
     _eta_s: float | None = None
     _eta_at: float = 0.0
@@ -73,6 +74,10 @@ class RunState:
             note = (" (given)" if "given" in reason else
                     " (textured, one constant material)" if "constant material" in reason else "")
             self.smoothing = f"λ {float(event.get('lambda') or 0):g}{note}"
+        elif kind == "preset" and event.get("predicted_psnr") is not None:
+            spread = event.get("psnr_spread")
+            self.predicted = f"{float(event['predicted_psnr']):.0f}" + (
+                "" if spread is None else f" \u00b1 {float(spread):.0f}") + " dB"
         elif kind == "accuracy":
             if event.get("psnr") is not None:
                 self.accuracy.append((float(event.get("seconds") or 0.0), float(event["psnr"])))
@@ -104,12 +109,14 @@ class RunState:
         self._eta_s, self._eta_at = 0.0, time.monotonic()
 
     def accuracy_text(self) -> str:
-        """One line for the panel, e.g. 'Held-out PSNR 24.3 dB (+7.1 dB in 5m 10s, 12 scores)'."""
+        """One line for the panel, e.g. 'Held-out PSNR 24.3 dB (+7.1 dB in 5m 10s, 12 scores;
+        predicted 24 ± 3 dB)'."""
         if not self.accuracy:
             return ""
         (t0, first), (t1, last) = self.accuracy[0], self.accuracy[-1]
+        predicted = f"; predicted {self.predicted}" if self.predicted else ""
         return (f"Held-out PSNR {last:.1f} dB ({last - first:+.1f} dB in {format_duration(t1 - t0)}, "
-                f"{len(self.accuracy)} scores)")
+                f"{len(self.accuracy)} scores{predicted})")
 
     def next_level_text(self) -> str:
         """What the level a time budget cut off was expected to buy (the `done` event), or ''."""

@@ -204,6 +204,18 @@ def test_run_state_follows_events():
     assert state.headline() == "Done"
 
 
+def test_the_predicted_psnr_is_shown_beside_the_held_out_scores():
+    state = progress.RunState()
+    state.update({"event": "preset", "preset": "draft", "predicted_psnr": 23.81, "psnr_spread": 3.24})
+    state.update({"event": "accuracy", "seconds": 5.0, "psnr": 20.5})
+    state.update({"event": "accuracy", "seconds": 65.0, "psnr": 23.1})
+    assert state.accuracy_text() == "Held-out PSNR 23.1 dB (+2.6 dB in 1m 00s, 2 scores; predicted 24 \u00b1 3 dB)"
+    resumed = progress.RunState()  # a resumed run's preset event predicts nothing
+    resumed.update({"event": "preset", "preset": "draft", "predicted_psnr": None})
+    resumed.update({"event": "accuracy", "seconds": 1.0, "psnr": 20.0})
+    assert "predicted" not in resumed.accuracy_text()
+
+
 def test_run_state_eta_without_backend_estimate():
     state = progress.RunState(started=time.monotonic() - 10.0)
     state.update({"event": "progress", "fraction": 0.25})
