@@ -41,7 +41,7 @@ from ..geometry.mesh import Mesh, load_mesh
 from ..metrics.image import image_metrics
 from ..optimize.config import ReconstructConfig
 from ..optimize.presets import PRESETS
-from . import _report
+from . import _all, _report
 from ._machine import REPO, code_version, machine, machine_line  # noqa: F401  (bench/effects imports them from here)
 from ._ray import require_ray, run_tasks
 from ._sweep_scenes import SCENES, ensure
@@ -273,10 +273,17 @@ def add_arguments(parser) -> None:
                              "Ray instance when none is given (needs `pip install ray`; see bench/_ray.py)")
     parser.add_argument("--cpus-per-run", type=float, default=2,
                         help="with --ray: CPUs each run declares (Ray's num_cpus; default: %(default)s)")
+    parser.add_argument("--all", action="store_true",
+                        help="run every measurement behind docs/results.md and bench/ into --out (bench/_all.py): "
+                             "OUT/all.md holds each section's commands and tables")
+    parser.add_argument("--only", help="with --all: only these jobs (comma-separated; --list names them)")
+    parser.add_argument("--list", action="store_true", help="with --all: print the jobs and their hours, run nothing")
 
 
 def run(args) -> int:
     emit = Emitter()
+    if args.all or args.list:
+        return _run_all(args, emit)
     ray = None
     if getattr(args, "ray", None) is not None:
         ray = require_ray()
@@ -320,3 +327,17 @@ def run(args) -> int:
     written = _report.write(rows, args.report, SCENES, history=load_history(results))
     emit("done", report=str(written), results=str(results), runs=len(rows))
     return 0
+
+
+def _run_all(args, emit) -> int:
+    """``--all``: every job of bench/_all.py (``--list``: print them only)."""
+    try:
+        jobs = _all.select(args.only)
+    except ValueError as err:
+        raise InputError(None, str(err), "see python -m backend bench sweep --all --list") from None
+    if args.list:
+        print(_all.listing(jobs), flush=True)
+        return 0
+    records = _all.run_all(jobs, args.out, args.report, emit)
+    emit("done", result=str(args.out / "all.md"), jobs=len(records), failed=[r["job"] for r in records if r["rc"]])
+    return 0 if all(r["rc"] == 0 for r in records) else 1

@@ -1,0 +1,52 @@
+"""``bench sweep --all``: the registry covers docs/results.md, and the runner runs real commands,
+records them and gathers what they printed."""
+
+from __future__ import annotations
+
+import json
+import re
+
+from backend.bench import _all
+from tests.helpers import REPO, run_cli
+
+RESULTS = REPO / "docs" / "results.md"
+
+
+def test_every_job_belongs_to_a_section_and_every_documented_benchmark_has_a_job():
+    text = RESULTS.read_text()
+    headings = {line.lstrip("#").strip() for line in text.splitlines() if line.startswith("#")}
+    for job in _all.JOBS:
+        assert job.section in headings, (job.name, job.section)
+        assert job.commands and job.hours > 0
+    documented = set(re.findall(r"python -m backend bench ([a-z]+)", text))
+    run = {c[1] for job in _all.JOBS for c in job.commands if c[0] == "bench"}
+    assert documented and documented <= run, documented - run
+
+
+def test_list_prints_the_jobs_and_runs_nothing(tmp_path):
+    proc = run_cli("bench", "sweep", "--all", "--list", "--out", tmp_path / "all", timeout=120)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    lines = proc.stdout.strip().splitlines()
+    assert [line.split()[0] for line in lines[:-1]] == [j.name for j in _all.JOBS]
+    assert lines[-1].startswith("total") and not (tmp_path / "all").exists()
+    bad = run_cli("bench", "sweep", "--all", "--only", "nope", "--out", tmp_path / "all", timeout=120)
+    assert bad.returncode == 2 and "unknown job nope" in bad.stderr and "Traceback" not in bad.stderr
+
+
+def test_the_runner_records_each_command_and_stops_a_job_at_its_first_failure(tmp_path):
+    good = _all.Job("tiny", "Demo", 0.01, (
+        ("synth", "--out", "{out}/capture", "--views", "4", "--resolution", "16", "--spp", "4", "--held-out", "0"),
+        ("python", "-c", "print('| views | 4 |')")))
+    bad = _all.Job("broken", "Numerical stability", 0.01, (
+        ("reconstruct", "{out}/missing", "--out", "{out}/run"),
+        ("python", "-c", "print('never')")))
+    events = []
+    records = _all.run_all([good, bad], tmp_path, tmp_path / "report", lambda *a, **k: events.append((a, k)))
+    ok, failed = records
+    assert ok["rc"] == 0 and len(ok["steps"]) == 2 and (tmp_path / "tiny" / "capture" / "capture.json").is_file()
+    assert all(s["seconds"] >= 0 and s["cpu_seconds"] >= 0 for s in ok["steps"])
+    assert failed["rc"] == 2 and len(failed["steps"]) == 1 and "missing" in failed["steps"][0]["error"]
+    doc = json.loads((tmp_path / "all.json").read_text())
+    assert [j["job"] for j in doc["jobs"]] == ["tiny", "broken"] and doc["code"]
+    md = (tmp_path / "all.md").read_text()
+    assert "## Demo" in md and "| views | 4 |" in md and "**failed (2)**" in md and "never" not in md
