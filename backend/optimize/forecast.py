@@ -14,7 +14,8 @@ the prediction starts from a measurement on the capture itself:
 ``probe`` measures what the capture's appearance allows on the starting shape; ``gain`` is
 what the preset's geometry levels, finer textures and specular stage add on top of that,
 calibrated as the median over captures that are not used to test the prediction
-(``GAINS``; ``bench plan`` compares predicted and measured on five others). Held-out views
+(``GAINS_FILE``, with the largest distance from that median as the prediction's spread;
+``bench plan`` compares predicted and measured on five others). Held-out views
 are those ``--track-accuracy`` scores (``accuracy.split``: the capture's ground-truth held-out
 views, else every ``held_out_every``-th view, left out of the probe's fit), rendered as the
 tracker renders them, so that the prediction and the run's ``accuracy_time`` measure the same
@@ -35,10 +36,10 @@ GAINS_FILE = Path(__file__).resolve().parents[1] / "forecast.json"  # written by
 def probe(capture, config, held=None) -> dict | None:
     """The probe's held-out PSNR on ``capture``, or None when nothing can be held out or the
     material is not the staged one (the gains are calibrated with it). ``config``: the probe's
-    settings (``job.probe_config``); ``held``: the views (``accuracy.HeldOut``) a run already holds out of ``capture``
-    (``--track-accuracy``), else the probe holds out the same ones itself. The initial mesh is
-    made as the run makes it, from the fitted views only. Returns {"psnr", "seconds", "views",
-    "source", "cycles", "faces"}."""
+    settings (``job.probe_config``); ``held``: the views (``accuracy.HeldOut``) a run already
+    holds out of ``capture`` (``--track-accuracy``), else the probe holds out the same ones
+    itself. The initial mesh is made as the run makes it, from the fitted views only. Returns
+    {"psnr", "seconds", "views", "source", "cycles", "faces"}."""
     from ..geometry.init import initial_mesh  # these need the Mitsuba variant chosen (the plan's caller does)
     from . import accuracy
     from .appearance import Appearance
