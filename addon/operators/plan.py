@@ -39,8 +39,8 @@ def plan_summary(plan: dict) -> str:
 
 
 class SFT_OT_plan(JobModal, bpy.types.Operator):
-    """Measure what a step costs on this capture (a few seconds) and predict each quality
-    preset's time on it; nothing is reconstructed"""
+    """Measure what a step costs on this capture and probe its accuracy (seconds), and predict
+    each quality preset's time and held-out PSNR on it; nothing is reconstructed"""
 
     bl_idname = "sft.plan"
     bl_label = "Plan"
@@ -62,7 +62,7 @@ class SFT_OT_plan(JobModal, bpy.types.Operator):
         require((capture / "capture.json").is_file(), capture, "the capture has no cameras yet",
                 "solve the cameras (Solve Cameras) or import them first")
         sft = context.scene.sft
-        sft.plan_text = "Measuring this capture's step costs..."
+        sft.plan_text = "Measuring this capture's step costs and accuracy..."
         python = backend_python(context)
         try:
             return PlanJob(python, plan_args(capture, sft))

@@ -112,7 +112,7 @@ class SFT_PT_reconstruct(_Panel, bpy.types.Panel):
         plan = jobs.ACTIVE.get("plan")
         row = box.row(align=True)
         if plan is not None and plan.running:
-            row.label(text="Measuring this capture's step costs...", icon="TIME")
+            row.label(text="Measuring this capture's step costs and accuracy...", icon="TIME")
             row.operator("sft.plan_cancel", text="", icon="CANCEL")
         else:
             # one line per preset: the whole plan does not fit the sidebar's width
