@@ -8,7 +8,8 @@ views are left out of everything the run fits (initialisation, geometry, materia
 validation). Too few views to hold any out: not tracked, with a warning.
 
 ``AccuracyTracker`` scores up to ``accuracy_views`` of them, at ``accuracy_size`` px and
-``accuracy_spp`` spp (x ``ENV_SPP_FACTOR`` under an environment map) with the current mesh and material under the run's fitted lighting
+``accuracy_spp`` spp (x ``ENV_SPP_FACTOR`` under an environment map) with the current mesh
+and material under the run's fitted lighting
 (backend.lighting.fitted, as ``evaluate`` renders them: the views' own lights x the light
 factor, the estimated map, or the flash at each view's camera), every ``accuracy_every_s``
 seconds of run time and at every level's and stage's end: the mean PSNR on sRGB within the
