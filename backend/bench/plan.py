@@ -37,9 +37,9 @@ from pathlib import Path
 from .. import fsio
 from ..errors import InputError, require
 from ..events import Emitter
+from ..optimize.forecast import GAINS_FILE
 from ._data import SHARED_DATA
 from ._machine import code_version, machine
-from ..optimize.forecast import GAINS_FILE
 from .sweep import REPO, Setting, reconstruct_child
 
 MESHES = SHARED_DATA / "meshes"

@@ -33,12 +33,13 @@ PROBE_CYCLES = 8  # most material cycles the probe runs (the constant stage ends
 GAINS_FILE = Path(__file__).resolve().parents[1] / "forecast.json"  # written by ``bench plan --calibrate``
 
 
-def probe(capture, config, held=None) -> dict | None:
+def probe(capture, config, held=None, mesh=None) -> dict | None:
     """The probe's held-out PSNR on ``capture``, or None when nothing can be held out or the
     material is not the staged one (the gains are calibrated with it). ``config``: the probe's
     settings (``job.probe_config``); ``held``: the views (``accuracy.HeldOut``) a run already
     holds out of ``capture`` (``--track-accuracy``), else the probe holds out the same ones
-    itself. The initial mesh is made as the run makes it, from the fitted views only. Returns
+    itself. The initial mesh is made as the run makes it, from the fitted views only (``mesh``:
+    the run's own, when it was made so with the probe's settings). Returns
     {"psnr", "seconds", "views", "source", "cycles", "faces"}."""
     from ..geometry.init import initial_mesh  # these need the Mitsuba variant chosen (the plan's caller does)
     from . import accuracy
@@ -50,11 +51,13 @@ def probe(capture, config, held=None) -> dict | None:
     start = time.perf_counter()
     config = dataclasses.replace(config, track_accuracy=True)
     if held is None or held.capture is None:
+        mesh = None  # carved from every view: the probe's must not see the held-out ones
         capture, held = accuracy.split(dataclasses.replace(capture), config)
         if held.capture is None:
             return None
     fit = dataclasses.replace(capture)  # the lighting fit sets its environment on this copy only
-    mesh, _ = initial_mesh(fit, config.init, config.initial_faces)
+    if mesh is None:
+        mesh, _ = initial_mesh(fit, config.init, config.initial_faces)
     appearance = Appearance(fit, config, emit=lambda *a, **k: {})
     with tempfile.TemporaryDirectory(prefix="sft-probe-") as folder:
         appearance.start_lighting(Path(folder))

@@ -207,11 +207,11 @@ def probe_config(args, lighting: str):
     return dataclasses.replace(_preset_configs(args, [DEFAULT])[DEFAULT], lighting=lighting)
 
 
-def safe_probe(probe, capture, config, held=None, warn=print):
-    """``probe(capture, config, held)``, or None with a warning when it fails: a prediction
+def safe_probe(probe, capture, config, held=None, warn=print, mesh=None):
+    """``probe(capture, config, held, mesh)``, or None with a warning when it fails: a prediction
     that cannot be made must not stop the run it predicts."""
     try:
-        return probe(capture, config, held)
+        return probe(capture, config, held, mesh)
     except (InputError, RuntimeError, ValueError) as err:
         warn(f"no predicted accuracy: the probe failed ({err})")
         return None
@@ -235,8 +235,10 @@ def _preset_event(args, emit, config, capture):
         if settings is not None:
             from .forecast import probe  # the planner runs once the variant is chosen
 
-            probed = safe_probe(probe, capture, probe_config(args, config.lighting), held,
-                                warn=lambda m: emit("warning", message=m))
+            probing = probe_config(args, config.lighting)
+            same = (probing.init, probing.initial_faces) == (config.init, config.initial_faces)
+            probed = safe_probe(probe, capture, probing, held, warn=lambda m: emit("warning", message=m),
+                                mesh=initial if same else None)  # the run's carve, when it is the probe's
             plan = make_plan(capture, {preset: config}, settings, staged=config.material == "staged",
                              calibration=entries, viewset=viewset, material_settings=material_settings,
                              initial=initial, probe=probed)

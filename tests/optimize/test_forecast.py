@@ -96,7 +96,7 @@ def test_a_failing_probe_leaves_the_run_without_a_prediction():
     from backend.errors import InputError
     from backend.optimize.job import safe_probe
 
-    def failing(capture, config, held):
+    def failing(capture, config, held, mesh):
         raise InputError(None, "the visual hull is empty", "check the masks")
 
     warnings = []
