@@ -173,6 +173,7 @@ class EstimatedEnvironment:
         self.level = 0
         self.frame = frame  # "world", or "camera": fixed to each view's camera (--lighting rig)
         self.scales: list[float] = []  # the convention's rescaling factors, one per stage
+        self.restarts = 0
 
     @classmethod
     def initial(cls, capture: Capture, path: Path, frame: str = "world") -> "EstimatedEnvironment":
@@ -215,6 +216,15 @@ class EstimatedEnvironment:
         self.latent = upsample(self.latent, *RESOLUTIONS[level])
         return True
 
+    def restart(self, capture: Capture) -> None:
+        """Back to the initial map at the coarsest resolution, to be fitted again (the relight
+        on the final surface: backend.optimize.appearance)."""
+        width, height = RESOLUTIONS[0]
+        pixels, self.source, self.seen, self.background_scale = initial_map(capture, width, height,
+                                                                            background=self.frame == "world")
+        self.latent, self.level = np.log(pixels).astype(np.float32), 0
+        self.restarts += 1
+
     def rescale(self, factor: float) -> None:
         self.latent = self.latent + np.float32(np.log(factor))
 
@@ -256,7 +266,7 @@ class EstimatedEnvironment:
                 "smoothness": self.smoothness, "frame": self.frame, "initial": self.source,
                 "background_coverage": round(self.seen, 4),
                 "background_scale": round(self.background_scale, 6),
-                "scale_convention": CONVENTION, "albedo_scales": self.scales,
+                "scale_convention": CONVENTION, "albedo_scales": self.scales, "restarts": self.restarts,
                 "mean_radiance": [round(x, 6) for x in self.mean_radiance()]}
 
     def event(self) -> dict:

@@ -79,6 +79,7 @@ class Flash:
         self.capture = capture
         self.scales: list[float] = []  # the convention's rescaling factors, one per stage
         self.initial_value = initial
+        self.restarts = 0
         self.latent = latent
 
     @classmethod
@@ -113,6 +114,12 @@ class Flash:
     def at_stage(self, stage: str) -> bool:
         return False  # one parameter at every stage
 
+    def restart(self, capture: Capture | None = None) -> None:
+        """Back to the initial intensity, to be fitted again (the relight on the final surface)."""
+        if self.initial_value is not None:
+            self.latent = np.full(len(self._latent), math.log(self.initial_value), np.float32)
+        self.restarts += 1
+
     def normalise(self, material) -> float:
         """The scale convention (backend.lighting.convention): albedo x s, intensity / s.
         Returns s."""
@@ -138,7 +145,7 @@ class Flash:
                 "parameterisation": "a point light at each camera centre, radiance falling off as 1/r^2; "
                                     "intensity = exp(latent), fitted with the material",
                 "rgb": len(self._latent) == 3, "initial_intensity": self.initial_value,
-                "scale_convention": CONVENTION, "albedo_scales": self.scales}
+                "scale_convention": CONVENTION, "albedo_scales": self.scales, "restarts": self.restarts}
 
     def event(self) -> dict:
         """The ``lighting`` event's fields (docs/protocol.md)."""

@@ -6,6 +6,7 @@
     driver.cycle(renderer, images, masks, material, emit)    # one stage of the schedule
     driver.on_remesh(mesh, material, cameras)                # after a re-mesh (labels re-voted)
     driver.finalise()                                        # geometry converged: last, longer stages
+    driver.restart(3)                                        # ... from grey, constants first (a relight)
     driver.refine() / driver.skip_to() / driver.skip_rest()  # the schedule's other moves
     driver.settle(renderer, images, masks, material)         # the end: keep the specular texture?
     driver.state() / driver.restore(state, images, masks)   # the schedule's position, for --resume
@@ -115,6 +116,12 @@ class MaterialDriver:
         if not self.schedule.final:
             self.schedule.finalise(last=last)
             self.settings = replace(self.settings, iterations=self.settings.iterations * iterations_scale)
+
+    def restart(self, material: MeshColorMaterial, constant_cycles: int) -> None:
+        """The material back to neutral grey constants and the schedule to its constant stage
+        (MaterialSchedule.restart), keeping the final stages' length."""
+        material.reset()
+        self.schedule.restart(constant_cycles)
 
     def settle(self, renderer, images, masks, material: MeshColorMaterial) -> dict | None:
         """The run's last material step: a specular texture stays only if it renders the views

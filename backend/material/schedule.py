@@ -76,6 +76,12 @@ class MaterialSchedule:
         self.stage, self.cycle, self.stale, self.best, self.patience = stage, 0, 0, math.inf, 1
         self.cycle_limit = cycles
 
+    def restart(self, constant_cycles: int) -> None:
+        """The material restarted from grey on the final surface (the relight under a fitted
+        lighting): the constant stage again, at most ``constant_cycles``, then the textures."""
+        self.stage, self.cycle, self.stale, self.best, self.cycle_limit = "constant", 0, 0, math.inf, None
+        self.constant_cycles = constant_cycles
+
     def skip_to(self, stage: str) -> None:
         """Start ``stage`` now (a later one than the current), e.g. when the time left holds
         only one more cycle and the last stage has not had its turn."""

@@ -11,7 +11,8 @@ light-transport effects.
   values and its constants are fitted).
   ``all`` or a list forces them. Each decision is an ``effects`` event.
 - A fitted lighting (``--lighting estimate``/``flash``) gets constant-material cycles on the
-  initial mesh before any geometry step (``light_first``)."""
+  initial mesh before any geometry step (``light_first``), and restarts with the material
+  once geometry has converged, to be fitted again on the final surface (``finalise``)."""
 
 from __future__ import annotations
 
@@ -185,10 +186,22 @@ class Appearance:
         """The material schedule's last stage: diffuse when the scene has no specular lobe."""
         return "diffuse" if self.decision is not None and not self.decision.specular else "specular"
 
-    def finalise(self) -> None:
-        """Geometry has converged: the material's last, longer stages follow."""
-        if self.driver is not None:
-            self.driver.finalise(self._last_stage())
+    def finalise(self, material=None, relight: bool = False) -> None:
+        """Geometry has converged: the material's last, longer stages follow. With a fitted
+        lighting and ``relight`` (time left for it), the lighting and the material first go back
+        to their initial values and are fitted again on the final surface, constants first as in
+        ``light_first``. Fitted along with the moving surface, the albedo takes up shading that
+        the intermediate surfaces and lighting got wrong, and the lighting drifts with it; the
+        views still fit, but the split of light and albedo does not carry to other lighting
+        (docs/notes/2026-11-28-relight.md)."""
+        if self.driver is None or self.driver.schedule.final:
+            return
+        self.driver.finalise(self._last_stage())
+        if relight and self.lighting is not None and material is not None:
+            self.lighting.restart(self.capture)
+            self.capture.environment = self.lighting.environment()
+            self.driver.restart(material, self.config.light_first_cycles)
+            self._lighting_event("restarted")
 
     def last_stage_due(self) -> bool:
         """Whether the schedule is on the final geometry and short of its last stage."""

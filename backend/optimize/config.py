@@ -51,6 +51,9 @@ class ReconstructConfig:
     material_warmup: int = 60  # material-only steps before the first geometry step (estimated material)
     material_lr: float = 0.03  # Adam step on material latents (logits)
     light_first_cycles: int = 3  # a fitted lighting's most constant-material cycles before level 0
+    # a fitted lighting and the material restart and are fitted again on the final surface, when
+    # this share of a time budget is left (see Appearance.finalise); None: never
+    relight_reserve: float | None = 0.2
     # convergence (see backend.optimize.schedule)
     eval_every: int = 10  # steps between validation losses
     plateau_tolerance: float = 0.005

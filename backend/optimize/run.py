@@ -260,7 +260,8 @@ class Reconstruction:
         """Once geometry has converged: material stages until their schedule ends."""
         s = self.state
         views = self.viewset.at(self.config.max_size)
-        self.appearance.finalise()
+        reserve = self.config.relight_reserve
+        self.appearance.finalise(self.material, relight=reserve is not None and not self.budget.out(reserve))
         last = 0.0  # seconds of the last cycle: one that would end past the budget is not begun
         for _ in range(most):
             if self.budget.out() or not self.budget.fits(last):

@@ -146,6 +146,17 @@ def test_environment_fit_recovers_the_sky_with_a_known_material():
     assert abs(int(np.argmax(lum.max(0))) - int(np.argmax(target.mean(-1).max(0)))) <= 2  # the sun's azimuth
 
 
+def test_restart_returns_the_map_to_its_initial_state(tmp_path):
+    capture = Capture(tmp_path, [])
+    env = estimate.EstimatedEnvironment.initial(capture, tmp_path / "environment.exr")
+    first = env.latent.copy()
+    env.at_stage("specular")
+    env.latent = env.latent + 1.0
+    env.restart(capture)
+    assert env.level == 0 and env.resolution == estimate.RESOLUTIONS[0] and env.restarts == 1
+    assert np.array_equal(env.latent, first) and env.report()["restarts"] == 1
+
+
 def test_normalise_keeps_renders_and_sets_mean_albedo():
     mesh = procedural.blob(2)
     material = MeshColorMaterial(mesh, 1)
@@ -209,6 +220,13 @@ def test_capture_without_light_estimates_it_by_default(dark_capture, tmp_path):
     whole = json.loads((run / "report.json").read_text())
     first = whole["init"]["light_first"]
     assert 1 <= first["cycles"] <= 3 and len(first["losses"]) == first["cycles"]
+    # once geometry has converged the map and the material restart and are fitted again on the
+    # final surface (Appearance.finalise): constants first, after the last geometry step
+    order = [(e["event"], e.get("when") or e.get("stage")) for e in log if e["event"] in ("lighting", "stage")]
+    restart = order.index(("lighting", "restarted"))
+    last_geometry = max(i for i, x in enumerate(order) if x == ("stage", "geometry"))
+    assert restart > last_geometry and order[restart + 1] == ("stage", "material:constant")
+    assert whole["lighting"]["restarts"] == 1
     report = whole["lighting"]
     assert report["model"].startswith("environment map") and "mean albedo" in report["scale_convention"]
     fitted = read_linear_rgb(run / "environment.exr")

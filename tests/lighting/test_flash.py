@@ -130,6 +130,11 @@ def test_normalise_keeps_albedo_times_intensity_and_sets_mean_albedo(tmp_path):
     resumed = flash.Flash(capture, [0.0])  # a resumed run: the intensity comes back from the state
     resumed.restore(fitted.state())
     assert resumed.intensity == pytest.approx(fitted.intensity)
+    again = flash.Flash(capture, [math.log(3.0)], initial=2.0)  # the relight on the final surface
+    again.normalise(material)
+    again.restart()
+    assert again.intensity == pytest.approx(2.0) and again.restarts == 1
+    assert np.allclose(capture.frames[0].lights[0].intensity, 2.0)
 
 
 def test_resolve_lighting_flash_replaces_the_lights_and_refuses_a_map(tmp_path):
