@@ -30,6 +30,7 @@ class RunState:
     effects: str = ""  # the light-transport effects being simulated, from the newest `effects` event
     shadow_samples: str = ""  # what the level's shadow gradients cost, from the newest `shadow_samples` event
     smoothing: str = ""  # the vertex steps' Large Steps smoothing, from the `stiffness` event
+    lighting: str = ""  # the fitted lighting (--lighting estimate/rig/flash), from the newest `lighting` event
     done: dict = field(default_factory=dict)  # the `done` event
     accuracy: list = field(default_factory=list)  # (seconds, held-out PSNR) of the `accuracy` events
     predicted: str = ""  # the held-out PSNR the `preset` event predicted, e.g. '24 ± 3 dB'
@@ -78,6 +79,8 @@ class RunState:
             spread = event.get("psnr_spread")
             self.predicted = f"{float(event['predicted_psnr']):.0f}" + (
                 "" if spread is None else f" \u00b1 {float(spread):.0f}") + " dB"
+        elif kind == "lighting":
+            self.lighting = lighting_summary(event)
         elif kind == "accuracy":
             if event.get("psnr") is not None:
                 self.accuracy.append((float(event.get("seconds") or 0.0), float(event["psnr"])))
@@ -182,6 +185,22 @@ def shadow_samples_summary(event: dict) -> str:
     ratio = event.get("expected_ratio")
     cost = f", {float(ratio):.1f}x a step" if ratio is not None else ""
     return f"shadows: {event.get('chosen')} samples/px{cost}"
+
+
+def lighting_summary(event: dict) -> str:
+    """One line from a ``lighting`` event, e.g. 'estimated map 32x16, fitted (diffuse)' or
+    'flash, fitted again on the final surface'."""
+    if event.get("model") == "flash":
+        what = "flash"
+    else:
+        width, height = (event.get("resolution") or [0, 0])[:2]
+        what = ("map on the camera rig" if event.get("frame") == "camera" else "estimated map") + f" {width}x{height}"
+    when = event.get("when")
+    if when == "restarted":
+        return f"{what}, fitted again on the final surface"
+    if when == "fitted":
+        return f"{what}, fitted ({event.get('stage')})"
+    return f"{what}, {'resumed' if when == 'resumed' else 'first guess'}"
 
 
 def cameras_summary(done: dict) -> str:

@@ -29,6 +29,8 @@ def _draw_job(layout, job: jobs.Job | None, cancel: str | None = None) -> bool:
             col.label(text=f"Simulating: {state.effects}", icon="LIGHT")
             if state.shadow_samples:
                 col.label(text=f"Cost: {state.shadow_samples}", icon="TIME")
+        if state.lighting:
+            col.label(text=f"Lighting: {state.lighting}", icon="WORLD")
         if state.smoothing:
             col.label(text=f"Smoothing: {state.smoothing}", icon="MOD_SMOOTH")
         if state.status == progress.STOPPING:

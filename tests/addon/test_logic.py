@@ -286,6 +286,20 @@ def test_effects_event_is_summarised_for_the_panel():
     assert state.smoothing == "λ 20 (textured, one constant material)"
 
 
+def test_lighting_events_are_summarised_for_the_panel():
+    state = progress.RunState()
+    assert state.lighting == ""  # a captured map: no lighting events, no line
+    base = {"event": "lighting", "model": "estimate", "frame": "world", "resolution": [16, 8]}
+    state.update(dict(base, when="initial", stage=None))
+    assert state.lighting == "estimated map 16x8, first guess"
+    state.update(dict(base, when="fitted", stage="diffuse", resolution=[32, 16]))
+    assert state.lighting == "estimated map 32x16, fitted (diffuse)"
+    state.update(dict(base, when="restarted", stage=None, frame="camera"))
+    assert state.lighting == "map on the camera rig 16x8, fitted again on the final surface"
+    state.update({"event": "lighting", "model": "flash", "when": "fitted", "stage": "constant", "intensity": 2.0})
+    assert state.lighting == "flash, fitted (constant)"
+
+
 def test_solved_cameras_are_summarised_with_the_silhouette_refinement():
     done = {"event": "done", "registered": 40, "total": 40, "reprojection_error_px": 0.5186,
             "silhouettes": {"applied": True, "frames": 37, "pairs": 312, "dropped": ["00012"]}}
