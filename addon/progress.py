@@ -197,7 +197,11 @@ def lighting_summary(event: dict) -> str:
         what = ("map on the camera rig" if event.get("frame") == "camera" else "estimated map") + f" {width}x{height}"
     when = event.get("when")
     if when == "restarted":
+        return f"{what}, fitting again on the final surface"
+    if when == "relit":
         return f"{what}, fitted again on the final surface"
+    if when == "restored":
+        return f"{what}, the fit before the final surface kept (the refit fitted the views worse)"
     if when == "fitted":
         return f"{what}, fitted ({event.get('stage')})"
     return f"{what}, {'resumed' if when == 'resumed' else 'first guess'}"

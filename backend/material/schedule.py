@@ -94,15 +94,17 @@ class MaterialSchedule:
         self.constant_cycles = self.restart_cycles
 
 
-def _saved(material: MeshColorMaterial) -> tuple[dict, float]:
+def saved_values(material: MeshColorMaterial) -> tuple[dict, float]:
+    """Every channel's values and kind, and the light factor: what ``restore_values`` puts back."""
     return {n: (material.values(n).copy(), material.channels[n].kind) for n in material.CHANNELS}, material.light_factor
 
 
-def _restore(renderer, material: MeshColorMaterial, saved: tuple[dict, float]) -> None:
+def restore_values(material: MeshColorMaterial, saved: tuple[dict, float], renderer=None) -> None:
+    """Put back what ``saved_values`` saved (``renderer``: its lighting scale follows the factor)."""
     channels, k = saved
     for name, (values, kind) in channels.items():
         material.set_values(name, values, kind)
-    if ENV_SCALE in renderer.params and k != material.light_factor:
+    if renderer is not None and ENV_SCALE in renderer.params and k != material.light_factor:
         renderer.params[ENV_SCALE] = mi.Float(float(renderer.params[ENV_SCALE][0]) * k / material.light_factor)
         renderer.params.update()
     material.light_factor = k
@@ -118,7 +120,7 @@ def run_cycle(schedule: MaterialSchedule, renderer, images, weights, material: M
     if stage == "done":
         return FitResult("done")
     before = evaluate_loss(renderer, images, weights, material, loss_spp)
-    saved = _saved(material)
+    saved = saved_values(material)
     saved_light = None if lighting is None else lighting.latent.copy()
     if stage == "constant":
         result = fit_constants(renderer, images, weights, material, settings, emit, lighting=lighting)
@@ -133,7 +135,7 @@ def run_cycle(schedule: MaterialSchedule, renderer, images, weights, material: M
         result = fit_specular(renderer, images, weights, material, spec, emit=emit, views=fitted, lighting=lighting)
     after = evaluate_loss(renderer, images, weights, material, loss_spp)
     if not after <= before:
-        _restore(renderer, material, saved)
+        restore_values(material, saved, renderer)
         if lighting is not None:
             lighting.latent = saved_light
             lighting.fit().reset(renderer)

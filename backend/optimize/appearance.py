@@ -33,6 +33,7 @@ from ..render import effects
 from ..render.scene import RenderSettings, SceneRenderer
 from . import effect_costs
 from .objective import Objective
+from .relight import Relight
 from .stiffness import STIFF
 
 
@@ -55,6 +56,7 @@ class Appearance:
         self.costs_from: str | None = None  # the decision that measured them
         # the lighting fitted with the material: --lighting estimate's map, --lighting flash's flash
         self.lighting: EstimatedEnvironment | Flash | None = None
+        self.relight = Relight()
 
     # -- lighting ----------------------------------------------------------------------------------
     def start_lighting(self, folder, resume: bool = False) -> None:
@@ -87,7 +89,7 @@ class Appearance:
 
     def lighting_report(self) -> dict:
         if self.lighting is not None:
-            return self.lighting.report()
+            return dict(self.lighting.report(), relight=self.relight.record)
         return {"model": "captured", "emitters": _emitters(self.capture)}
 
     @staticmethod
@@ -186,22 +188,27 @@ class Appearance:
         """The material schedule's last stage: diffuse when the scene has no specular lobe."""
         return "diffuse" if self.decision is not None and not self.decision.specular else "specular"
 
-    def finalise(self, material=None, relight: bool = False) -> None:
+    def finalise(self, mesh=None, material=None, views=None, budget=None) -> None:
         """Geometry has converged: the material's last, longer stages follow. With a fitted
-        lighting and ``relight`` (time left for it), the lighting and the material first go back
-        to their initial values and are fitted again on the final surface, constants first as in
-        ``light_first``. Fitted along with the moving surface, the albedo takes up shading that
-        the intermediate surfaces and lighting got wrong, and the lighting drifts with it; the
-        views still fit, but the split of light and albedo does not carry to other lighting
-        (docs/notes/2026-11-28-relight.md)."""
+        lighting and ``config.relight_reserve`` of the time budget left (``budget``, the run's
+        Budget), the lighting and the material first go back to their initial values, to be
+        fitted again on the final surface (``relight.Relight``; ``judge_relight`` keeps it or
+        not once the stages end)."""
         if self.driver is None or self.driver.schedule.final:
             return
         self.driver.finalise(self._last_stage())
-        if relight and self.lighting is not None and material is not None:
-            self.lighting.restart(self.capture)
-            self.capture.environment = self.lighting.environment()
-            self.driver.restart(material, self.config.light_first_cycles)
+        reserve = self.config.relight_reserve
+        if (self.lighting is not None and material is not None and reserve is not None
+                and not (budget is not None and budget.out(reserve))):
+            self.relight.start(self, mesh, material, views)
             self._lighting_event("restarted")
+
+    def judge_relight(self, mesh, material, views) -> None:
+        """The final stages ended: the relit material and lighting stay, or the earlier ones
+        come back (``relight.Relight.judge``; a ``lighting`` event ``relit`` or ``restored``)."""
+        record = self.relight.judge(self, mesh, material, views)
+        if record is not None:
+            self._lighting_event("relit" if record["kept"] else "restored")
 
     def last_stage_due(self) -> bool:
         """Whether the schedule is on the final geometry and short of its last stage."""

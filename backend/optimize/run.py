@@ -260,8 +260,7 @@ class Reconstruction:
         """Once geometry has converged: material stages until their schedule ends."""
         s = self.state
         views = self.viewset.at(self.config.max_size)
-        reserve = self.config.relight_reserve
-        self.appearance.finalise(self.material, relight=reserve is not None and not self.budget.out(reserve))
+        self.appearance.finalise(s.mesh, self.material, views, self.budget)
         last = 0.0  # seconds of the last cycle: one that would end past the budget is not begun
         for _ in range(most):
             if self.budget.out() or not self.budget.fits(last):
@@ -277,6 +276,7 @@ class Reconstruction:
             s.levels[-1].add_cycle(result)
             self.track("material")
             self.snapshot(loss=result["loss"])
+        self.appearance.judge_relight(s.mesh, self.material, views)
 
     # -- what the level runs use ---------------------------------------------------------------------
     def settings(self) -> RenderSettings:

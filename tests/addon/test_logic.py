@@ -295,7 +295,11 @@ def test_lighting_events_are_summarised_for_the_panel():
     state.update(dict(base, when="fitted", stage="diffuse", resolution=[32, 16]))
     assert state.lighting == "estimated map 32x16, fitted (diffuse)"
     state.update(dict(base, when="restarted", stage=None, frame="camera"))
-    assert state.lighting == "map on the camera rig 16x8, fitted again on the final surface"
+    assert state.lighting == "map on the camera rig 16x8, fitting again on the final surface"
+    state.update(dict(base, when="relit", stage=None))
+    assert state.lighting == "estimated map 16x8, fitted again on the final surface"
+    state.update(dict(base, when="restored", stage=None))
+    assert state.lighting.endswith("the fit before the final surface kept (the refit fitted the views worse)")
     state.update({"event": "lighting", "model": "flash", "when": "fitted", "stage": "constant", "intensity": 2.0})
     assert state.lighting == "flash, fitted (constant)"
 

@@ -227,6 +227,10 @@ def test_capture_without_light_estimates_it_by_default(dark_capture, tmp_path):
     last_geometry = max(i for i, x in enumerate(order) if x == ("stage", "geometry"))
     assert restart > last_geometry and order[restart + 1] == ("stage", "material:constant")
     assert whole["lighting"]["restarts"] == 1
+    # judged once the final stages end (optimize/relight.py): kept, or the earlier fit put back
+    relight = whole["lighting"]["relight"]
+    assert relight["kept"] == (relight["loss_after"] <= relight["tolerance"] * relight["loss_before"])
+    assert ("lighting", "relit" if relight["kept"] else "restored") in order[restart:]
     report = whole["lighting"]
     assert report["model"].startswith("environment map") and "mean albedo" in report["scale_convention"]
     fitted = read_linear_rgb(run / "environment.exr")

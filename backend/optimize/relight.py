@@ -1,0 +1,79 @@
+"""The relight: once geometry has converged, a fitted lighting (``--lighting estimate``, ``rig``
+or ``flash``) and the material go back to their initial values and are fitted again on the
+final surface, constants first, then the final stages.
+
+Fitted along with a surface that moves through its levels and re-meshes, the albedo takes up
+shading that the intermediate surfaces and lightings got wrong, and the lighting drifts to
+match it: the fitted views still match, but the split of light and albedo does not carry to
+another light. Fitted afresh on the final surface it does
+(docs/notes/2026-11-28-relight.md).
+
+A fresh fit can also fail where the lighting is hard to separate from the material (a map on
+the camera rig, where every view's highlights face the camera), so the relight is judged once
+the final stages end: with the full-view loss L (``stages.evaluate_loss``, the views at full
+size) of the material and lighting before it, L_before, and after it, L_after, the relit
+ones are kept when
+
+    L_after <= TOLERANCE x L_before
+
+and the earlier ones are put back otherwise. The tolerance admits the small loss a
+relight costs on the views it fits (the albedo no longer paints shading in) while refusing a
+fit that lost the views."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..material.schedule import restore_values, saved_values
+from ..material.stages import evaluate_loss
+
+TOLERANCE = 1.25
+
+
+def _lighting_values(lighting) -> tuple[np.ndarray, int | None]:
+    return np.array(lighting.latent, copy=True), getattr(lighting, "level", None)
+
+
+def _put_lighting(lighting, values) -> None:
+    latent, level = values
+    lighting.latent = latent
+    if level is not None:
+        lighting.level = level
+
+
+class Relight:
+    """One run's relight: ``start`` it, then ``judge`` it once the final stages end."""
+
+    def __init__(self):
+        self.saved = None  # (material values, lighting values, L_before) while being judged
+        self.record: dict | None = None  # for report.json lighting.relight
+
+    def full_loss(self, appearance, mesh, material, views) -> float:
+        renderer = appearance._renderer(mesh, material, views, geometry=False)
+        return evaluate_loss(renderer, [v.target for v in views], appearance._masks(views), material)
+
+    def start(self, appearance, mesh, material, views) -> None:
+        """Save what is there, then restart the lighting and the material."""
+        lighting = appearance.lighting
+        before = self.full_loss(appearance, mesh, material, views)
+        self.saved = (saved_values(material), _lighting_values(lighting), before)
+        lighting.restart(appearance.capture)
+        appearance.capture.environment = lighting.environment()
+        appearance.driver.restart(material, appearance.config.light_first_cycles)
+
+    def judge(self, appearance, mesh, material, views) -> dict | None:
+        """Keep the relit material and lighting, or put the earlier ones back (module
+        docstring); returns the record, or None when no relight is waiting."""
+        if self.saved is None:
+            return None
+        material_values, lighting_values, before = self.saved
+        self.saved = None
+        after = self.full_loss(appearance, mesh, material, views)
+        kept = bool(after <= TOLERANCE * before)
+        if not kept:
+            restore_values(material, material_values)
+            _put_lighting(appearance.lighting, lighting_values)
+            appearance.capture.environment = appearance.lighting.environment()
+        self.record = {"loss_before": round(before, 8), "loss_after": round(after, 8), "tolerance": TOLERANCE,
+                       "kept": kept}
+        return self.record
