@@ -6,7 +6,7 @@
     driver.cycle(renderer, images, masks, material, emit)    # one stage of the schedule
     driver.on_remesh(mesh, material, cameras)                # after a re-mesh (labels re-voted)
     driver.finalise()                                        # geometry converged: last, longer stages
-    driver.restart(3)                                        # ... from grey, constants first (a relight)
+    driver.restart(material, 3)                              # ... from grey, constants first (a relight)
     driver.refine() / driver.skip_to() / driver.skip_rest()  # the schedule's other moves
     driver.settle(renderer, images, masks, material)         # the end: keep the specular texture?
     driver.state() / driver.restore(state, images, masks)   # the schedule's position, for --resume

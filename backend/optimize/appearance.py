@@ -203,10 +203,10 @@ class Appearance:
             self.relight.start(self, mesh, material, views)
             self._lighting_event("restarted")
 
-    def judge_relight(self, mesh, material, views) -> None:
+    def judge_relight(self, mesh, material) -> None:
         """The final stages ended: the relit material and lighting stay, or the earlier ones
         come back (``relight.Relight.judge``; a ``lighting`` event ``relit`` or ``restored``)."""
-        record = self.relight.judge(self, mesh, material, views)
+        record = self.relight.judge(self, mesh, material)
         if record is not None:
             self._lighting_event("relit" if record["kept"] else "restored")
 

@@ -46,6 +46,7 @@ class Relight:
 
     def __init__(self):
         self.saved = None  # (material values, lighting values, L_before) while being judged
+        self.views = None  # the final views it is judged on
         self.record: dict | None = None  # for report.json lighting.relight
 
     def full_loss(self, appearance, mesh, material, views) -> float:
@@ -56,19 +57,20 @@ class Relight:
         """Save what is there, then restart the lighting and the material."""
         lighting = appearance.lighting
         before = self.full_loss(appearance, mesh, material, views)
-        self.saved = (saved_values(material), _lighting_values(lighting), before)
+        self.saved, self.views = (saved_values(material), _lighting_values(lighting), before), views
         lighting.restart(appearance.capture)
         appearance.capture.environment = lighting.environment()
         appearance.driver.restart(material, appearance.config.light_first_cycles)
 
-    def judge(self, appearance, mesh, material, views) -> dict | None:
+    def judge(self, appearance, mesh, material) -> dict | None:
         """Keep the relit material and lighting, or put the earlier ones back (module
-        docstring); returns the record, or None when no relight is waiting."""
+        docstring); returns the record, or None when no relight is waiting. Also on a cancel
+        during the relight: a half-done relight that renders the views worse is not kept."""
         if self.saved is None:
             return None
         material_values, lighting_values, before = self.saved
         self.saved = None
-        after = self.full_loss(appearance, mesh, material, views)
+        after = self.full_loss(appearance, mesh, material, self.views)
         kept = bool(after <= TOLERANCE * before)
         if not kept:
             restore_values(material, material_values)

@@ -276,7 +276,7 @@ class Reconstruction:
             s.levels[-1].add_cycle(result)
             self.track("material")
             self.snapshot(loss=result["loss"])
-        self.appearance.judge_relight(s.mesh, self.material, views)
+        self.appearance.judge_relight(s.mesh, self.material)
 
     # -- what the level runs use ---------------------------------------------------------------------
     def settings(self) -> RenderSettings:
@@ -336,6 +336,7 @@ class Reconstruction:
         rel = None
         if self.state.mesh is not None and self.state.budget is not None:
             try:
+                self.appearance.judge_relight(self.state.mesh, self.material)  # a relight under way
                 rel = self.snapshot(loss=self.state.last_loss)
             except (KeyboardInterrupt, StopRequested):  # a second request while writing: the last one stands
                 rel = None

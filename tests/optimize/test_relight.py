@@ -56,11 +56,11 @@ def test_a_relight_that_lost_the_views_gives_the_earlier_fit_back(fitted):
     assert appearance.lighting.restarts == 1 and appearance.driver.stage == "constant"
     assert not np.allclose(material.values("albedo"), albedo)  # back to neutral grey
     material.set_values("albedo", np.full_like(material.values("albedo"), 0.02))  # a fit that lost the views
-    record = judge.judge(appearance, mesh, material, views)
+    record = judge.judge(appearance, mesh, material)
     assert not record["kept"] and record["loss_after"] > relight.TOLERANCE * record["loss_before"]
     assert np.allclose(material.values("albedo"), albedo)
     assert np.array_equal(appearance.lighting.latent, latent)
-    assert judge.judge(appearance, mesh, material, views) is None  # judged once
+    assert judge.judge(appearance, mesh, material) is None  # judged once
 
 
 def test_a_relight_that_fits_as_well_is_kept(fitted):
@@ -71,5 +71,5 @@ def test_a_relight_that_fits_as_well_is_kept(fitted):
     restore_values(material, values)  # the relit fit came back to where the earlier one was
     appearance.lighting.latent = latent
     appearance.capture.environment = appearance.lighting.environment()
-    record = judge.judge(appearance, mesh, material, views)
+    record = judge.judge(appearance, mesh, material)
     assert record["kept"] and record["loss_after"] == pytest.approx(record["loss_before"], rel=1e-3)
