@@ -115,6 +115,11 @@ def test_reconstruct_panel_shows_progress_and_cancel(context, addon, tmp_path):
         assert any(e[0] == "label" and e[1].startswith("geometry (level 0)  it ") and "loss" in e[1] for e in log)
         assert ("operator", "sft.reconstruct_cancel", True) in log
         assert not any(e[:2] == ("operator", "sft.reconstruct") for e in log)  # no second run
+        # a fitted lighting's line (the protocol's lighting event, as an estimate run emits it)
+        job.state.update({"event": "lighting", "when": "restarted", "stage": None, "model": "estimate",
+                          "frame": "world", "resolution": [16, 8]})
+        assert ("label", "Lighting: estimated map 16x8, fitting again on the final surface") in draw(
+            "SFT_PT_reconstruct", context)
         assert bpy.ops.sft.reconstruct_cancel() == {"FINISHED"}
         assert any(e == ("label", "Stopping after the current step...") for e in draw("SFT_PT_reconstruct", context))
         job.run_blocking(context, interval=0.02)
