@@ -5,7 +5,10 @@ tiny capture rendered under an HDR map that the run does not get."""
 from __future__ import annotations
 
 import json
+import os
 import shutil
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -27,7 +30,7 @@ from backend.material import stages  # noqa: E402
 from backend.material.model import MeshColorMaterial  # noqa: E402
 from backend.render.scene import RenderSettings, SceneRenderer, environment_dict, sensor_dict  # noqa: E402
 from backend.synth import layout, procedural  # noqa: E402
-from tests.helpers import run_cli, shared_data  # noqa: E402
+from tests.helpers import REPO, run_cli, shared_data  # noqa: E402
 
 FOREST = ("envmaps", "forest_slope_1k.hdr")
 
@@ -199,7 +202,9 @@ def dark_capture(tmp_path_factory) -> tuple[Path, Path]:
     return root / "dark", root / "lit" / "env.exr"
 
 
-SMALL = {"level_iterations": 15, "min_level_iterations": 5, "max_levels": 1, "polish_rounds": 0, "time_budget_s": 30}
+# relight_reserve 0: the relight runs whatever share of the budget a loaded machine has left
+SMALL = {"level_iterations": 15, "min_level_iterations": 5, "max_levels": 1, "polish_rounds": 0, "time_budget_s": 30,
+         "relight_reserve": 0.0}
 FAST = ["--max-size", "32", "--coarse-size", "32", "--initial-faces", "800", "--spp", "4", "--effects", "specular"]
 
 
@@ -238,6 +243,26 @@ def test_capture_without_light_estimates_it_by_default(dark_capture, tmp_path):
     assert np.all(np.isfinite(fitted)) and fitted.min() > 0
     truth = box_down(read_linear_rgb(true_map), fitted.shape[1], fitted.shape[0])
     assert correlation(fitted, truth) > 0.3
+
+
+def test_a_cancel_during_the_relight_judges_it_before_the_last_snapshot(dark_capture, tmp_path):
+    dark, _ = dark_capture
+    run = tmp_path / "run"
+    env = dict(os.environ, PYTHONPATH=str(REPO), PYTHONUNBUFFERED="1", SFT_RECONSTRUCT_SETTINGS=json.dumps(SMALL))
+    proc = subprocess.Popen([sys.executable, "-m", "backend", "reconstruct", str(dark), "--out", str(run), *FAST],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env, cwd=REPO)
+    events = []
+    for line in proc.stdout:
+        events.append(json.loads(line))
+        if events[-1]["event"] == "lighting" and events[-1]["when"] == "restarted":
+            (run / "STOP").touch()  # checked at the relight's next progress event
+    proc.communicate(timeout=300)
+    assert proc.returncode == 130
+    kinds = [(e["event"], e.get("when")) for e in events]
+    restart, cancelled = kinds.index(("lighting", "restarted")), kinds.index(("cancelled", None))
+    judged = [i for i, k in enumerate(kinds) if k in (("lighting", "relit"), ("lighting", "restored"))]
+    assert len(judged) == 1 and restart < judged[0] < cancelled
+    assert events[cancelled]["snapshot"] and (run / "environment.exr").is_file()
 
 
 def test_lighting_none_without_light_is_a_one_line_error(dark_capture, tmp_path):
