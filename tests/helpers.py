@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import json
 import os
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -31,3 +33,16 @@ def run_cli(*args, timeout: float = 600, check: bool = False, cwd: Path | None =
     if check and proc.returncode != 0:
         raise AssertionError(f"backend {args} failed ({proc.returncode}):\n{proc.stderr[-3000:]}")
     return proc
+
+
+def withheld_map_capture(root: Path, views: int, resolution: int, spp: int, env: Path) -> tuple[Path, Path]:
+    """A capture synthesised under the HDR map ``env`` in ``root``/lit, and its copy without
+    the environment in ``root``/dark (a capture with no light: --lighting estimate's case).
+    Returns (the dark capture, the lit capture's map)."""
+    run_cli("synth", "--out", root / "lit", "--lighting", "env", "--env", env, "--views", views,
+            "--resolution", resolution, "--spp", spp, "--held-out", 0, check=True)
+    shutil.copytree(root / "lit", root / "dark")
+    data = json.loads((root / "dark" / "capture.json").read_text())
+    data.pop("environment")
+    (root / "dark" / "capture.json").write_text(json.dumps(data))
+    return root / "dark", root / "lit" / "env.exr"

@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import json
 import os
-import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -30,7 +29,7 @@ from backend.material import stages  # noqa: E402
 from backend.material.model import MeshColorMaterial  # noqa: E402
 from backend.render.scene import RenderSettings, SceneRenderer, environment_dict, sensor_dict  # noqa: E402
 from backend.synth import layout, procedural  # noqa: E402
-from tests.helpers import REPO, run_cli, shared_data  # noqa: E402
+from tests.helpers import REPO, run_cli, shared_data, withheld_map_capture  # noqa: E402
 
 FOREST = ("envmaps", "forest_slope_1k.hdr")
 
@@ -191,15 +190,7 @@ def test_resolve_lighting_defaults_and_errors(tmp_path):
 @pytest.fixture(scope="module")
 def dark_capture(tmp_path_factory) -> tuple[Path, Path]:
     """A capture rendered under the forest HDR map, and a copy of it without its environment."""
-    hdr = shared_data(*FOREST)
-    root = tmp_path_factory.mktemp("lit")
-    run_cli("synth", "--out", root / "lit", "--lighting", "env", "--env", hdr, "--views", 8, "--resolution", 32,
-            "--spp", 32, "--held-out", 0, check=True)
-    shutil.copytree(root / "lit", root / "dark")
-    data = json.loads((root / "dark" / "capture.json").read_text())
-    data.pop("environment")
-    (root / "dark" / "capture.json").write_text(json.dumps(data))
-    return root / "dark", root / "lit" / "env.exr"
+    return withheld_map_capture(tmp_path_factory.mktemp("lit"), 8, 32, 32, shared_data(*FOREST))
 
 
 # relight_reserve 0: the relight runs whatever share of the budget a loaded machine has left

@@ -4,9 +4,6 @@ material and lighting back, value for value."""
 
 from __future__ import annotations
 
-import json
-import shutil
-
 import numpy as np
 import pytest
 
@@ -21,22 +18,16 @@ from backend.optimize import relight  # noqa: E402
 from backend.optimize.appearance import Appearance  # noqa: E402
 from backend.optimize.config import ReconstructConfig  # noqa: E402
 from backend.optimize.views import ViewSet  # noqa: E402
-from tests.helpers import run_cli, shared_data  # noqa: E402
+from tests.helpers import shared_data, withheld_map_capture  # noqa: E402
 
 
 @pytest.fixture(scope="module")
 def fitted(tmp_path_factory):
     """An appearance with an estimated map, its material fitted through the constant stage on
     the carved surface of a capture rendered under the forest map (withheld)."""
-    hdr = shared_data("envmaps", "forest_slope_1k.hdr")
     root = tmp_path_factory.mktemp("relight")
-    run_cli("synth", "--out", root / "lit", "--lighting", "env", "--env", hdr, "--views", 6, "--resolution", 24,
-            "--spp", 16, "--held-out", 0, check=True)
-    shutil.copytree(root / "lit", root / "dark")
-    data = json.loads((root / "dark" / "capture.json").read_text())
-    data.pop("environment")
-    (root / "dark" / "capture.json").write_text(json.dumps(data))
-    capture = load_capture(root / "dark")
+    dark, _ = withheld_map_capture(root, 6, 24, 16, shared_data("envmaps", "forest_slope_1k.hdr"))
+    capture = load_capture(dark)
     config = ReconstructConfig(material="staged", lighting="estimate", spp=4, max_size=24, coarse_size=24,
                                initial_faces=400)
     appearance = Appearance(capture, config, emit=lambda *a, **k: {})
