@@ -29,6 +29,7 @@ from ..lighting.setup import ESTIMATED, MAP_FRAME
 from ..material import factory
 from ..material.driver import MaterialDriver
 from ..material.export import write_glb
+from ..material.stages import evaluate_loss
 from ..render import effects
 from ..render.scene import RenderSettings, SceneRenderer
 from . import effect_costs
@@ -183,6 +184,11 @@ class Appearance:
         if self.driver.stage != stage_before and self.driver.stage == "specular":
             self.decide(mesh, material, views, reason="materials became spatially varying")
         return {"stage": stage_before, "loss": result.loss, "seconds": round(time.perf_counter() - start, 3)}
+
+    def full_loss(self, mesh, material, views) -> float:
+        """The material's loss over ``views`` as the schedule scores a cycle (``stages.evaluate_loss``)."""
+        renderer = self._renderer(mesh, material, views, geometry=False)
+        return evaluate_loss(renderer, [v.target for v in views], self._masks(views), material)
 
     def _last_stage(self) -> str:
         """The material schedule's last stage: diffuse when the scene has no specular lobe."""

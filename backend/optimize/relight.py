@@ -10,7 +10,7 @@ another light. Fitted afresh on the final surface it does
 
 A fresh fit can also fail where the lighting is hard to separate from the material (a map on
 the camera rig, where every view's highlights face the camera), so the relight is judged once
-the final stages end: with the full-view loss L (``stages.evaluate_loss``, the views at full
+the final stages end: with the full-view loss L (``Appearance.full_loss``, the views at full
 size) of the material and lighting before it, L_before, and after it, L_after, the relit
 ones are kept when
 
@@ -25,7 +25,6 @@ from __future__ import annotations
 import numpy as np
 
 from ..material.schedule import restore_values, saved_values
-from ..material.stages import evaluate_loss
 
 TOLERANCE = 1.25
 
@@ -49,14 +48,10 @@ class Relight:
         self.views = None  # the final views it is judged on
         self.record: dict | None = None  # for report.json lighting.relight
 
-    def full_loss(self, appearance, mesh, material, views) -> float:
-        renderer = appearance._renderer(mesh, material, views, geometry=False)
-        return evaluate_loss(renderer, [v.target for v in views], appearance._masks(views), material)
-
     def start(self, appearance, mesh, material, views) -> None:
         """Save what is there, then restart the lighting and the material."""
         lighting = appearance.lighting
-        before = self.full_loss(appearance, mesh, material, views)
+        before = appearance.full_loss(mesh, material, views)
         self.saved, self.views = (saved_values(material), _lighting_values(lighting), before), views
         lighting.restart(appearance.capture)
         appearance.capture.environment = lighting.environment()
@@ -70,7 +65,7 @@ class Relight:
             return None
         material_values, lighting_values, before = self.saved
         self.saved = None
-        after = self.full_loss(appearance, mesh, material, self.views)
+        after = appearance.full_loss(mesh, material, self.views)
         kept = bool(after <= TOLERANCE * before)
         if not kept:
             restore_values(material, material_values)
