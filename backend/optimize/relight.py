@@ -29,11 +29,12 @@ from ..material.schedule import restore_values, saved_values
 TOLERANCE = 1.25
 
 
-def _lighting_values(lighting) -> tuple[np.ndarray, int | None]:
+def lighting_values(lighting) -> tuple[np.ndarray, int | None]:
+    """A fitted lighting's values (its latent and coarse-to-fine level), for ``put_lighting``."""
     return np.array(lighting.latent, copy=True), getattr(lighting, "level", None)
 
 
-def _put_lighting(lighting, values) -> None:
+def put_lighting(lighting, values) -> None:
     latent, level = values
     lighting.latent = latent
     if level is not None:
@@ -52,7 +53,7 @@ class Relight:
         """Save what is there, then restart the lighting and the material."""
         lighting = appearance.lighting
         before = appearance.full_loss(mesh, material, views)
-        self.saved, self.views = (saved_values(material), _lighting_values(lighting), before), views
+        self.saved, self.views = (saved_values(material), lighting_values(lighting), before), views
         lighting.restart(appearance.capture)
         appearance.capture.environment = lighting.environment()
         appearance.driver.restart(material, appearance.config.light_first_cycles)
@@ -63,13 +64,13 @@ class Relight:
         during the relight: a half-done relight that renders the views worse is not kept."""
         if self.saved is None:
             return None
-        material_values, lighting_values, before = self.saved
+        material_values, light, before = self.saved
         self.saved = None
         after = appearance.full_loss(mesh, material, self.views)
         kept = bool(after <= TOLERANCE * before)
         if not kept:
             restore_values(material, material_values)
-            _put_lighting(appearance.lighting, lighting_values)
+            put_lighting(appearance.lighting, light)
             appearance.capture.environment = appearance.lighting.environment()
         self.record = {"loss_before": round(before, 8), "loss_after": round(after, 8), "tolerance": TOLERANCE,
                        "kept": kept}

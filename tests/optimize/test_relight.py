@@ -64,3 +64,17 @@ def test_a_relight_that_fits_as_well_is_kept(fitted):
     appearance.capture.environment = appearance.lighting.environment()
     record = judge.judge(appearance, mesh, material)
     assert record["kept"] and record["loss_after"] == pytest.approx(record["loss_before"], rel=1e-3)
+
+
+def test_a_map_on_the_camera_rig_is_not_relit(fitted):
+    """Fresh fits under a map fixed to the camera lose the views (relight.py), so the final
+    stages go on from the fit the levels made."""
+    appearance, mesh, material, views = fitted
+    albedo, restarts = material.values("albedo").copy(), appearance.lighting.restarts
+    appearance.lighting.frame = "camera"
+    try:
+        appearance.finalise(mesh, material, views)
+        assert appearance.relight.saved is None and appearance.lighting.restarts == restarts
+        assert appearance.driver.schedule.final and np.array_equal(material.values("albedo"), albedo)
+    finally:
+        appearance.lighting.frame = "world"
