@@ -173,8 +173,9 @@ class Appearance:
         if self.lighting is not None:
             self.lighting.at_stage(stage_before)  # coarse to fine: the stage's map resolution
             self.capture.environment = self.lighting.environment()
-        renderer = self._renderer(mesh, material, views, geometry=False)
-        result = self.driver.cycle(renderer, [v.target for v in views], self._masks(views), material, self.emit,
+        fit = self.lobe.fitting(views)  # a lobe on trial: the views it is judged on stay out
+        renderer = self._renderer(mesh, material, fit, geometry=False)
+        result = self.driver.cycle(renderer, [v.target for v in fit], self._masks(fit), material, self.emit,
                                    lighting=self.lighting)
         if self.lighting is not None:
             self.lighting.normalise(material)  # the scale convention; the renders do not change
@@ -308,9 +309,9 @@ class Appearance:
             self.specular_off = False
         self._announce(reason, time.perf_counter() - start)
         if lobe_on and self.driver is not None:
-            fit_start = time.perf_counter()
-            renderer = self._renderer(mesh, material, views, geometry=False)
-            self.driver.lobe_on(renderer, [v.target for v in views], self._masks(views), material, self.emit)
+            fit_start, fit = time.perf_counter(), self.lobe.fitting(views)
+            renderer = self._renderer(mesh, material, fit, geometry=False)
+            self.driver.lobe_on(renderer, [v.target for v in fit], self._masks(fit), material, self.emit)
             self.seconds += time.perf_counter() - fit_start
 
     def _announce(self, reason: str, seconds: float, measured: dict | None = None) -> None:
@@ -327,16 +328,15 @@ class Appearance:
     def _judge_lobe(self, mesh, material) -> None:
         """After a material cycle: a lobe on trial stays, or is refused with the material and
         lighting from before it (``lobe_trial.LobeTrial.judge``); an ``effects`` event either way."""
-        start = time.perf_counter()
-        record = self.lobe.judge(self, mesh, material)
+        start, record = time.perf_counter(), self.lobe.judge(self, mesh, material)
         if record is None:
             return
         if not record["kept"]:
             self.decision.specular, self.specular_off = False, True
             self.decision.reasons = dict(self.decision.reasons, specular="the lobe lost the views: off for this run")
-        verdict = "kept" if record["kept"] else "refused"
-        self._announce(f"the specular lobe {verdict} (full-view loss {record['loss_before']:.4g} before, "
-                       f"{record['loss_after']:.4g} after)", time.perf_counter() - start, {"lobe_trial": record})
+        self._announce(f"the specular lobe {'kept' if record['kept'] else 'refused'} (loss on the views left out "
+                       f"{record['loss_before']:.4g} before, {record['loss_after']:.4g} after)",
+                       time.perf_counter() - start, {"lobe_trial": record})
 
     def _cost_probe(self, mesh, material, views, n_views: int = 4):
         """The effects decision's cost probe (effects.weigh_costs): geometry steps on

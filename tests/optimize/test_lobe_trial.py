@@ -1,7 +1,7 @@
 """The specular lobe on trial (backend/optimize/lobe_trial.py), with real renders: a lobe
-that an effects re-check turns on mid-run stays when the next material cycle renders the
-views at least as well, and otherwise the material from before it comes back and later
-re-checks leave the lobe off."""
+that an effects re-check turns on mid-run stays when, fitted without every 4th view, it
+renders those views at least as well, and otherwise the material from before it comes back
+and later re-checks leave the lobe off."""
 
 from __future__ import annotations
 
@@ -31,8 +31,12 @@ def test_a_lobe_that_renders_the_views_better_is_kept(tmp_path):
     app, mesh, material, views, events = _diffuse_first(tmp_path)
     app.recheck(mesh, material, views, level=1)
     assert app.decision.specular and app.lobe.pending
+    left_out = {views[2].name, views[6].name}  # 8 views: every 4th is left out of the trial's fits
+    assert app.lobe.left_out == left_out and [v.name for v in app.lobe.fitting(views)] == [
+        v.name for v in views if v.name not in left_out]
     app.material_cycle(mesh, material, views, level=1)
     record = app.lobe.records[-1]
+    assert set(record["judged_on"]) == left_out and app.lobe.fitting(views) == views
     assert record["kept"] and record["loss_after"] <= record["loss_before"], record
     assert app.decision.specular and "specular" in material.trainable and app.lobe.refused is None
     kinds = [f["reason"] for k, f in events if k == "effects"]
