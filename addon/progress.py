@@ -65,7 +65,7 @@ class RunState:
             if event.get("loss") is not None:
                 self.loss = event["loss"]
         elif kind == "effects":
-            self.effects = effects_summary(event.get("enabled") or {}, (event.get("measured") or {}).get("lobe_trial"))
+            self.effects = effects_summary(event.get("enabled") or {})
             if not (event.get("enabled") or {}).get("shadows"):
                 self.shadow_samples = ""
         elif kind == "shadow_samples":
@@ -170,17 +170,13 @@ class RunState:
         return "  ".join(parts)
 
 
-def effects_summary(enabled: dict, lobe_trial: dict | None = None) -> str:
-    """One line for the panel, e.g. 'direct light, specular' or '3 bounces, shadows, diffuse only';
-    with the verdict on a specular lobe turned on mid-run (``lobe_trial``), e.g. 'diffuse only
-    (lobe tried, refused)'."""
+def effects_summary(enabled: dict) -> str:
+    """One line for the panel, e.g. 'direct light, specular' or '3 bounces, shadows, diffuse only'."""
     depth = int(enabled.get("max_depth") or 2)
     parts = ["direct light" if depth <= 2 else f"{depth - 1} bounces"]
     if enabled.get("shadows"):
         parts.append("shadows")
     parts.append("specular" if enabled.get("specular", True) else "diffuse only")
-    if lobe_trial is not None:
-        parts[-1] += " (lobe tried, kept)" if lobe_trial.get("kept") else " (lobe tried, refused)"
     return ", ".join(parts)
 
 

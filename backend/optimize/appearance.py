@@ -8,7 +8,7 @@ light-transport effects.
   estimate, which effects matter and picks the integrator, depth, shadow gradients and the
   specular lobe; re-checked after every re-mesh and when materials become spatially varying,
   and after every geometry level while the lobe is off (turned on, it restarts from neutral
-  values and its constants are fitted, on trial: ``lobe_trial``).
+  values and its constants are fitted).
   ``all`` or a list forces them. Each decision is an ``effects`` event.
 - A fitted lighting (``--lighting estimate``/``flash``) gets constant-material cycles on the
   initial mesh before any geometry step (``light_first``), and restarts with the material
@@ -34,7 +34,6 @@ from ..render import effects
 from ..render.scene import RenderSettings, SceneRenderer
 from . import effect_costs
 from .objective import Objective
-from .lobe_trial import LobeTrial
 from .relight import Relight
 from .stiffness import STIFF
 
@@ -59,7 +58,6 @@ class Appearance:
         # the lighting fitted with the material: --lighting estimate's map, --lighting flash's flash
         self.lighting: EstimatedEnvironment | Flash | None = None
         self.relight = Relight()
-        self.lobe = LobeTrial()  # a lobe turned on mid-run stays only if the views render better
 
     # -- lighting ----------------------------------------------------------------------------------
     def start_lighting(self, folder, resume: bool = False) -> None:
@@ -173,9 +171,8 @@ class Appearance:
         if self.lighting is not None:
             self.lighting.at_stage(stage_before)  # coarse to fine: the stage's map resolution
             self.capture.environment = self.lighting.environment()
-        fit = self.lobe.fitting(views)  # a lobe on trial: the views it is judged on stay out
-        renderer = self._renderer(mesh, material, fit, geometry=False)
-        result = self.driver.cycle(renderer, [v.target for v in fit], self._masks(fit), material, self.emit,
+        renderer = self._renderer(mesh, material, views, geometry=False)
+        result = self.driver.cycle(renderer, [v.target for v in views], self._masks(views), material, self.emit,
                                    lighting=self.lighting)
         if self.lighting is not None:
             self.lighting.normalise(material)  # the scale convention; the renders do not change
@@ -184,7 +181,6 @@ class Appearance:
         if self.decision is not None and not self.decision.specular:
             material.disable("specular")  # the constant stage fits every channel: keep the diffuse-only model
         self.seconds += time.perf_counter() - start
-        self._judge_lobe(mesh, material)
         if self.driver.stage != stage_before and self.driver.stage == "specular":
             self.decide(mesh, material, views, reason="materials became spatially varying")
         return {"stage": stage_before, "loss": result.loss, "seconds": round(time.perf_counter() - start, 3)}
@@ -209,11 +205,10 @@ class Appearance:
         self.driver.finalise(self._last_stage())
         reserve = self.config.relight_reserve
         # a map on the camera rig is not fitted afresh: every view's highlights face the camera, and
-        # a fresh fit there loses the views (relight.py), so its reserve goes to the stages instead
+        # fresh fits there lost the views (relight.py), so its reserve goes to the final stages
         if (self.lighting is not None and material is not None and reserve is not None
                 and getattr(self.lighting, "frame", "world") != "camera"
                 and not (budget is not None and budget.out(reserve))):
-            self.lobe.drop()  # the relight restarts every channel and is judged on its own
             self.relight.start(self, mesh, material, views)
             self._lighting_event("restarted")
 
@@ -288,55 +283,36 @@ class Appearance:
         """Measure (or force) the effects and announce the decision."""
         start = time.perf_counter()
         cfg = effects.EffectsConfig(max_depth_probe=max(self.config.max_depth, 4))
-        renderer = self._renderer(mesh, material, views, geometry=False, settings=RenderSettings(spp=cfg.spp))
-        self.decision = effects.decide(renderer, [v.target for v in views],
-                                       [v.mask if v.mask is not None else np.ones(v.target.shape[:2]) for v in views],
+        probe = [v for v in views]
+        renderer = self._renderer(mesh, material, probe, geometry=False, settings=RenderSettings(spp=cfg.spp))
+        self.decision = effects.decide(renderer, [v.target for v in probe],
+                                       [v.mask if v.mask is not None else np.ones(v.target.shape[:2]) for v in probe],
                                        _emitters(self.capture), cfg, self.overrides, self.measure,
                                        probe=self._cost_probe(mesh, material, views))
         if "costs" in self.decision.measured:
             self.costs_from = self.costs_from or reason
             self.decision.measured["costs_measured_at"] = self.costs_from
         lobe_on = self.decision.specular and self.specular_off
-        if lobe_on and self.lobe.refused is not None:  # tried and refused earlier: it stays off
-            self.decision.specular, lobe_on = False, False
-            self.decision.reasons["specular"] = "the lobe was tried earlier and lost the views: off"
         if not self.decision.specular:
             self.specular_off = self.specular_off or "specular" in material.trainable
             material.disable("specular")
-        elif lobe_on:  # highlights found after a diffuse-only decision: the lobe restarts, on trial
-            self.lobe.start(self, mesh, material, views, reason)
+        elif lobe_on:  # highlights found after a diffuse-only decision: the lobe restarts
             material.restart_specular()
             self.specular_off = False
-        self._announce(reason, time.perf_counter() - start)
-        if lobe_on and self.driver is not None:
-            fit_start, fit = time.perf_counter(), self.lobe.fitting(views)
-            renderer = self._renderer(mesh, material, fit, geometry=False)
-            self.driver.lobe_on(renderer, [v.target for v in fit], self._masks(fit), material, self.emit)
-            self.seconds += time.perf_counter() - fit_start
-
-    def _announce(self, reason: str, seconds: float, measured: dict | None = None) -> None:
-        """The ``effects`` event (and report.json record) of the current decision."""
+        seconds = time.perf_counter() - start
         self.seconds += seconds
         enabled = {"max_depth": self.decision.max_depth, "shadows": self.decision.shadows,
                    "specular": self.decision.specular, "silhouettes": self.decision.silhouettes,
                    "emitters": self.decision.emitters}
-        record = {"reason": reason, "enabled": enabled, "measured": measured or self.decision.measured,
+        record = {"reason": reason, "enabled": enabled, "measured": self.decision.measured,
                   "why": self.decision.reasons, "forced": self.decision.forced, "seconds": round(seconds, 3)}
         self.history.append(record)
         self.emit("effects", **record)
-
-    def _judge_lobe(self, mesh, material) -> None:
-        """After a material cycle: a lobe on trial stays, or is refused with the material and
-        lighting from before it (``lobe_trial.LobeTrial.judge``); an ``effects`` event either way."""
-        start, record = time.perf_counter(), self.lobe.judge(self, mesh, material)
-        if record is None:
-            return
-        if not record["kept"]:
-            self.decision.specular, self.specular_off = False, True
-            self.decision.reasons = dict(self.decision.reasons, specular="the lobe lost the views: off for this run")
-        self._announce(f"the specular lobe {'kept' if record['kept'] else 'refused'} (loss on the views left out "
-                       f"{record['loss_before']:.4g} before, {record['loss_after']:.4g} after)",
-                       time.perf_counter() - start, {"lobe_trial": record})
+        if lobe_on and self.driver is not None:
+            fit_start = time.perf_counter()
+            renderer = self._renderer(mesh, material, views, geometry=False)
+            self.driver.lobe_on(renderer, [v.target for v in views], self._masks(views), material, self.emit)
+            self.seconds += time.perf_counter() - fit_start
 
     def _cost_probe(self, mesh, material, views, n_views: int = 4):
         """The effects decision's cost probe (effects.weigh_costs): geometry steps on
@@ -398,3 +374,8 @@ def lit_environment(capture: Capture, material):
     env = capture.environment
     factor = material.light_factor
     return env if env is None or factor == 1.0 else env.scaled(factor)
+
+
+def _disable_specular(material) -> None:
+    """The diffuse-only model: specular fixed at 0 and no longer trained (Material.disable)."""
+    material.disable("specular")

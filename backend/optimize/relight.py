@@ -9,7 +9,8 @@ another light. Fitted afresh on the final surface it does
 (docs/notes/2026-11-28-relight.md).
 
 A fresh fit can also fail where the lighting is hard to separate from the material (a map on
-the camera rig, where every view's highlights face the camera), so the relight is judged once
+the camera rig, where every view's highlights face the camera: ``Appearance.finalise`` does not
+relight one, since every fresh fit under it lost the views), so the relight is judged once
 the final stages end: with the full-view loss L (``Appearance.full_loss``, the views at full
 size) of the material and lighting before it, L_before, and after it, L_after, the relit
 ones are kept when
@@ -29,12 +30,11 @@ from ..material.schedule import restore_values, saved_values
 TOLERANCE = 1.25
 
 
-def lighting_values(lighting) -> tuple[np.ndarray, int | None]:
-    """A fitted lighting's values (its latent and coarse-to-fine level), for ``put_lighting``."""
+def _lighting_values(lighting) -> tuple[np.ndarray, int | None]:
     return np.array(lighting.latent, copy=True), getattr(lighting, "level", None)
 
 
-def put_lighting(lighting, values) -> None:
+def _put_lighting(lighting, values) -> None:
     latent, level = values
     lighting.latent = latent
     if level is not None:
@@ -53,7 +53,7 @@ class Relight:
         """Save what is there, then restart the lighting and the material."""
         lighting = appearance.lighting
         before = appearance.full_loss(mesh, material, views)
-        self.saved, self.views = (saved_values(material), lighting_values(lighting), before), views
+        self.saved, self.views = (saved_values(material), _lighting_values(lighting), before), views
         lighting.restart(appearance.capture)
         appearance.capture.environment = lighting.environment()
         appearance.driver.restart(material, appearance.config.light_first_cycles)
@@ -64,13 +64,13 @@ class Relight:
         during the relight: a half-done relight that renders the views worse is not kept."""
         if self.saved is None:
             return None
-        material_values, light, before = self.saved
+        material_values, lighting_values, before = self.saved
         self.saved = None
         after = appearance.full_loss(mesh, material, self.views)
         kept = bool(after <= TOLERANCE * before)
         if not kept:
             restore_values(material, material_values)
-            put_lighting(appearance.lighting, light)
+            _put_lighting(appearance.lighting, lighting_values)
             appearance.capture.environment = appearance.lighting.environment()
         self.record = {"loss_before": round(before, 8), "loss_after": round(after, 8), "tolerance": TOLERANCE,
                        "kept": kept}

@@ -276,10 +276,6 @@ def test_effects_event_is_summarised_for_the_panel():
     assert state.effects == "direct light, specular"
     state.update({"event": "effects", "enabled": {"max_depth": 4, "shadows": True, "specular": False}})
     assert state.effects == "3 bounces, shadows, diffuse only"
-    trial = {"turned_on": "level 2", "loss_before": 0.0067, "loss_after": 0.0071, "kept": False}
-    state.update({"event": "effects", "enabled": {"max_depth": 3, "shadows": True, "specular": False},
-                  "measured": {"lobe_trial": trial}})
-    assert state.effects == "2 bounces, shadows, diffuse only (lobe tried, refused)"
     state.update({"event": "shadow_samples", "level": 1, "full": 12, "chosen": 7, "measured_ratio": 2.38,
                   "expected_ratio": 1.804})
     assert state.shadow_samples == "shadows: 7 samples/px, 1.8x a step"

@@ -67,8 +67,8 @@ def test_a_relight_that_fits_as_well_is_kept(fitted):
 
 
 def test_a_map_on_the_camera_rig_is_not_relit(fitted):
-    """Fresh fits under a map fixed to the camera lose the views (relight.py), so the final
-    stages go on from the fit the levels made."""
+    """Fresh fits under a map fixed to the camera lose the views, so the final stages go on
+    from the fit the levels made."""
     appearance, mesh, material, views = fitted
     albedo, restarts = material.values("albedo").copy(), appearance.lighting.restarts
     appearance.lighting.frame = "camera"

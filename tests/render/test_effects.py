@@ -223,10 +223,11 @@ def test_a_lobe_found_after_a_diffuse_only_decision_restarts_and_is_fitted(tmp_p
     the highlights, the lobe restarts from neutral values (held at 0 its sigmoid has no slope)
     and its constants are fitted at once, lowering the full-view loss."""
     from backend.material import stages
+    from backend.optimize.appearance import _disable_specular
 
     app, mesh, material, views = _staged_appearance(tmp_path)
     app.decision = effects.EffectsDecision(specular=False, max_depth=2)
-    material.disable("specular")
+    _disable_specular(material)
     app.specular_off = True
     app.driver.schedule.stage = "diffuse"  # the constants were fitted diffuse-only
 
