@@ -1,6 +1,6 @@
 """Accuracy against time: reconstruct benchmark scenes over a grid of settings, report the Pareto fronts.
 
-``python -m backend bench sweep [--grid smoke|quick|full] [--scenes dragon,blob_env,corner]``
+``python -m backend bench sweep [--grid smoke|quick|full] [--scenes dragon,blob_env,corner,armadillo_env,video]``
 synthesises each scene once (cached in ``OUT/scenes``), then runs ``python -m backend
 reconstruct`` as a child process for every setting of the grid and records: wall-clock
 seconds (the median over repeats for runs shorter than ``--repeat-under``), the child's
@@ -252,7 +252,7 @@ def add_arguments(parser) -> None:
     parser.add_argument("--grid", choices=sorted(GRIDS), default="quick",
                         help="settings to run: smoke (two tiny ones), quick (Draft and two neighbours), "
                              "full (one knob at a time around Draft, plus Balanced), presets (default: %(default)s)")
-    parser.add_argument("--scenes", default="dragon,blob_env,corner",
+    parser.add_argument("--scenes", default="dragon,blob_env,corner,armadillo_env,video",
                         help=f"comma-separated, of {', '.join(SCENES)} (default: %(default)s)")
     parser.add_argument("--settings", help="only the grid's settings with these names (comma-separated)")
     parser.add_argument("--out", type=Path, default=REPO / "runs" / "bench-sweep",
