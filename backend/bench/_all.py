@@ -87,7 +87,7 @@ JOBS = (
     Job("realworld", "Real-world captures", 0.6, (("bench", "realworld", "--out", "{out}"),)),
     Job("sfm", "Real-world captures", 0.1, (("bench", "sfm", "--out", "{out}"),)),
     Job("stability", "Numerical stability", 0.3, (("bench", "stability", "--quick", "--out", "{out}"),)),
-    Job("sweep", "Accuracy versus time: the sweep and the presets", 3.0,
+    Job("sweep", "Accuracy versus time: the sweep and the presets", 3.4,
         (("bench", "sweep", "--grid", "quick", "--out", "{out}", "--report", "{report}"),)),
     Job("calibrate", "Accuracy versus time: the sweep and the presets", 1.5,
         (("bench", "calibrate", "--scenes", "dragon,blob_env", "--out", "{out}/presets.json", "--work", "{out}/work"),)),

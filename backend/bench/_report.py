@@ -40,13 +40,12 @@ def plot(rows: list[dict], scene: str, path: Path) -> None:
     import matplotlib.pyplot as plt
     import matplotlib.ticker
 
-    fig, axes = plt.subplots(1, len(PANELS), figsize=(5.2 * len(PANELS), 4.3))
+    # only the panels with points (a video scene has no relit views, so no relit panel)
+    panels = [(p, [r for r in rows if r.get(p[1]) is not None and r.get(p[0]) is not None]) for p in PANELS]
+    panels = [(p, pts) for p, pts in panels if pts]
+    fig, axes = plt.subplots(1, max(len(panels), 1), figsize=(5.2 * max(len(panels), 1), 4.3), squeeze=False)
     labelled = []
-    for ax, (tkey, key, xlabel, ylabel) in zip(axes, PANELS):
-        pts = [r for r in rows if r.get(key) is not None and r.get(tkey) is not None]
-        if not pts:
-            ax.set_visible(False)
-            continue
+    for ax, ((tkey, key, xlabel, ylabel), pts) in zip(axes[0], panels):
         idx = _pareto.front([r[tkey] for r in pts], [r[key] for r in pts])
         on = set(idx)
         for i, r in enumerate(pts):
@@ -67,7 +66,7 @@ def plot(rows: list[dict], scene: str, path: Path) -> None:
         ax.set_xlabel(xlabel)
         ax.set_ylabel(ylabel)
         ax.grid(True, which="both", alpha=0.3)
-        ax.legend(loc="lower right", fontsize=8)
+        ax.legend(loc="best", fontsize=8)
         labelled.append((ax, pts, on, tkey, key))
     fig.suptitle(f"{scene}: accuracy against time ({len(rows)} runs; diamonds: presets)")
     fig.tight_layout()

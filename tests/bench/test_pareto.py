@@ -149,3 +149,17 @@ def test_plot_labels_do_not_overlap_when_runs_cluster(tmp_path):
     rows = [{"name": n, "seconds": x, "cpu_seconds": 2 * x, "f1": y, "relit_psnr": y / 4} for n, x, y in zip(names, xs, ys)]
     _report.plot(rows, "cluster", tmp_path / "p.png")
     assert (tmp_path / "p.png").stat().st_size > 10_000
+
+
+def test_a_scene_without_relit_views_gets_no_empty_panel(tmp_path):
+    """A video scene has F1 but no relit PSNR: its plot has the two F1 panels only."""
+    from PIL import Image
+
+    from backend.bench import _report
+
+    rows = [{"name": f"draft:max_size={s}", "seconds": t, "cpu_seconds": 2 * t, "f1": f}
+            for s, t, f in ((64, 104.0, 89.5), (128, 136.0, 90.2), (96, 222.0, 88.7))]
+    _report.plot(rows, "video", tmp_path / "video.png")
+    _report.plot([dict(r, relit_psnr=20.0) for r in rows], "lit", tmp_path / "lit.png")
+    two, three = (Image.open(tmp_path / n).size[0] for n in ("video.png", "lit.png"))
+    assert two < 0.75 * three, (two, three)
