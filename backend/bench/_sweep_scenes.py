@@ -176,10 +176,11 @@ def build_corner(out: Path, emit, views: int = 24, held_out: int = 4, resolution
 
 def build_video(out: Path, emit, frames: int = 40, size: str = "640x360", samples: int = 16) -> None:
     """The video scene: ``bench realworld``'s Cycles orbit video (cached beside ``out`` in
-    ``video_orbit``, rendered again only when its settings change), through ``capture-from-video`` into ``out``; then the truth
-    mesh, carried into the capture's scene frame by the similarity that maps its solved camera
-    centres onto the rendered ones (Umeyama), is written to ``gt/mesh.ply`` and named the
-    capture's ground truth, so runs are scored as on the synthetic scenes."""
+    ``video_orbit``, rendered again only when its settings change), through
+    ``capture-from-video`` into ``out``; then the truth mesh, carried into the capture's scene
+    frame by the similarity that maps its solved camera centres onto the rendered ones
+    (Umeyama), is written to ``gt/mesh.ply`` and named the capture's ground truth, so runs are
+    scored as on the synthetic scenes."""
     import argparse
 
     from ..capture.load import load_capture
@@ -195,8 +196,8 @@ def build_video(out: Path, emit, frames: int = 40, size: str = "640x360", sample
     emit("progress", stage="synth:video:render", iteration=0, iterations=2)
     orbit = realworld.render(args)
     emit("progress", stage="synth:video:capture-from-video", iteration=1, iterations=2)
-    realworld._run(["-m", "backend", "capture-from-video", orbit / "orbit.mp4", "--masks", orbit / "masks",
-                    "--env", args.env, "--out", out, "--frames", frames, "--overwrite"], "capture-from-video")
+    realworld.run_child(["-m", "backend", "capture-from-video", orbit / "orbit.mp4", "--masks", orbit / "masks",
+                         "--env", args.env, "--out", out, "--frames", frames, "--overwrite"], "capture-from-video")
     truth = json.loads((orbit / "truth.json").read_text())
     capture = load_capture(out)
     ours = np.array([f.camera.camera_to_world[:3, 3] for f in capture.frames])

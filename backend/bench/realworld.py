@@ -70,7 +70,8 @@ def _env() -> dict:
     return env
 
 
-def _run(args: list, what: str) -> subprocess.CompletedProcess:
+def run_child(args: list, what: str) -> subprocess.CompletedProcess:
+    """``python ARGS`` with the repository on the path; raises with the child's last error line."""
     proc = subprocess.run([sys.executable, *map(str, args)], capture_output=True, text=True, env=_env())
     if proc.returncode != 0:
         tail = proc.stderr.strip().splitlines()[-1:] or ["(no message)"]
@@ -92,9 +93,9 @@ def render(args) -> Path:
         print(f"  video: cached in {folder}")
         return folder
     start = time.perf_counter()
-    _run([ROOT / "scripts" / "render_orbit.py", "--out", folder, "--mesh", args.mesh, "--up", args.up,
-          "--env", args.env, "--env-rotation", args.env_rotation, "--frames", args.frames, "--size", args.size,
-          "--samples", args.samples, "--jitter", args.jitter, "--seed", args.seed], "render_orbit.py")
+    run_child([ROOT / "scripts" / "render_orbit.py", "--out", folder, "--mesh", args.mesh, "--up", args.up,
+               "--env", args.env, "--env-rotation", args.env_rotation, "--frames", args.frames, "--size", args.size,
+               "--samples", args.samples, "--jitter", args.jitter, "--seed", args.seed], "render_orbit.py")
     stamp.write_text(json.dumps(wanted))
     print(f"  video: {args.frames} frames {args.size}, {args.samples} spp Cycles, rendered in "
           f"{(time.perf_counter() - start) / 60:.1f} min", flush=True)
@@ -159,8 +160,9 @@ def run_pipeline(args, orbit: Path) -> dict:
     """capture-from-video then reconstruct, timed; returns the figures."""
     capture, run = args.out / "capture", args.out / "run"
     start = time.perf_counter()
-    proc = _run(["-m", "backend", "capture-from-video", orbit / "orbit.mp4", "--masks", orbit / "masks",
-                 "--env", args.env, "--out", capture, "--frames", args.frames, "--overwrite"], "capture-from-video")
+    proc = run_child(["-m", "backend", "capture-from-video", orbit / "orbit.mp4", "--masks", orbit / "masks",
+                      "--env", args.env, "--out", capture, "--frames", args.frames, "--overwrite"],
+                     "capture-from-video")
     capture_s = time.perf_counter() - start
     events = [json.loads(line) for line in proc.stdout.splitlines() if line.startswith("{")]
     sfm = next((e for e in events if e.get("event") == "sfm"), {})
@@ -171,8 +173,8 @@ def run_pipeline(args, orbit: Path) -> dict:
     budget = max(1.0, args.minutes - capture_s / 60 - args.margin)
     extra = args.reconstruct_args.split()
     start = time.perf_counter()
-    _run(["-m", "backend", "reconstruct", capture, "--out", run, "--overwrite", "--time-budget", f"{budget:.2f}",
-          "--material", "constant", *extra], "reconstruct")
+    run_child(["-m", "backend", "reconstruct", capture, "--out", run, "--overwrite", "--time-budget",
+               f"{budget:.2f}", "--material", "constant", *extra], "reconstruct")
     reconstruct_s = time.perf_counter() - start
     report = json.loads((run / "report.json").read_text())
     print(f"  reconstruct: budget {budget:.1f} min, {reconstruct_s / 60:.1f} min, "
