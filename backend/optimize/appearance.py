@@ -207,7 +207,7 @@ class Appearance:
         # a map on the camera rig is not fitted afresh: every view's highlights face the camera, and
         # fresh fits there lost the views (relight.py), so its reserve goes to the final stages
         if (self.lighting is not None and material is not None and reserve is not None
-                and getattr(self.lighting, "frame", "world") != "camera"
+                and getattr(self.lighting, "frame", None) != MAP_FRAME["rig"]
                 and not (budget is not None and budget.out(reserve))):
             self.relight.start(self, mesh, material, views)
             self._lighting_event("restarted")
