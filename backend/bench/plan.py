@@ -53,6 +53,16 @@ CAPTURES = {
                    "--lighting", "env", "--env", ENVMAPS / "forest_slope_1k.hdr", "--albedo", "pattern"],
     "spot_flash48": ["--mesh", MESHES / "crane" / "spot" / "spot.obj", "--up", "y", "--views", 12, "--resolution", 48,
                      "--lighting", "flash", "--albedo", "pattern"],
+    # five more, new when the gains became per kind of lighting: none of them set anything either
+    "buddha_env64": ["--mesh", MESHES / "stanford" / "happy_buddha_vrip_res3.ply", "--up", "y", "--views", 14,
+                     "--resolution", 64, "--lighting", "env", "--env", ENVMAPS / "venice_sunset_1k.hdr"],
+    "sdragon_flash48": ["--mesh", MESHES / "stanford" / "dragon_watertight_100k.obj", "--up", "y", "--views", 12,
+                        "--resolution", 48, "--lighting", "flash"],
+    "spot_env48": ["--mesh", MESHES / "crane" / "spot" / "spot.obj", "--up", "y", "--views", 12, "--resolution", 48,
+                   "--lighting", "env", "--env", ENVMAPS / "studio_small_03_1k.hdr"],
+    "teacup_env48": ["--mesh", MESHES / "shapefromtracing" / "teacup.obj", "--up", "y", "--views", 8,
+                     "--resolution", 48, "--lighting", "env", "--env", ENVMAPS / "forest_slope_1k.hdr"],
+    "arma48": ["--mesh", MESHES / "stanford" / "armadillo_86k.obj", "--up", "y", "--views", 12, "--resolution", 48],
 }
 # the smoke test's capture (not among the default ones): the blob, 6 views at 24 px
 SMOKE = {"tiny": ["--views", 6, "--resolution", 24, "--spp", 8, "--held-out", 0]}
@@ -66,6 +76,11 @@ TRAINING = {
     "blob_flash48": ["--views", 10, "--resolution", 48, "--lighting", "flash"],
     "sbunny_env64": ["--mesh", MESHES / "stanford" / "bunny_watertight.obj", "--up", "y", "--views", 14,
                      "--resolution", 64, "--lighting", "env", "--env", ENVMAPS / "forest_slope_1k.hdr"],
+    # two more, so that each kind of lighting has a median of its own (forecast.py)
+    "dragon_env48": ["--mesh", MESHES / "shapefromtracing" / "dragon.obj", "--up", "y", "--views", 10, "--resolution", 48,
+                     "--lighting", "env", "--env", ENVMAPS / "studio_small_03_1k.hdr"],
+    "bob_flash48": ["--mesh", MESHES / "crane" / "bob" / "bob_tri.obj", "--up", "y", "--views", 10, "--resolution", 48,
+                    "--lighting", "flash"],
 }
 TIME_TOLERANCE = 0.30
 F1_TOLERANCE = 0.03
