@@ -1,7 +1,7 @@
 """Predicted against measured: the plan's time, held-out PSNR and the calibration's F1 on held-out captures.
 
 ``python -m backend bench plan --out OUT [--preset draft] [--captures a,b,...]`` synthesises
-five small captures of different kinds, none of which set a constant of the cost model
+ten small captures of different kinds, none of which set a constant of the cost model
 (optimize/plan.py), the accuracy gains (optimize/forecast.py) or the calibration (``bench
 calibrate``), and runs ``reconstruct CAPTURE --preset PRESET --track-accuracy`` on each with
 every other default (staged material, effects measured), as child processes, one after the
@@ -11,7 +11,10 @@ other:
 - ``blob_env48``: the built-in blob under the ``venice_sunset`` HDR map;
 - ``teacup48``: the teacup (a concavity the visual hull fills), point lights;
 - ``arma_env64``: the armadillo under ``forest_slope`` (self-shadowing: shadow gradients);
-- ``spot_flash48``: Spot with a texture, lit by a flash at each camera.
+- ``spot_flash48``: Spot with a texture, lit by a flash at each camera;
+- five more, added when the gains became per kind of lighting and unseen by it: the happy
+  Buddha under ``venice_sunset``, the Stanford dragon under a flash, Spot under
+  ``studio_small_03``, the teacup under ``forest_slope`` and the armadillo under point lights.
 
 For each it reads the ``preset`` event (``predicted_minutes``, planned once the run has
 decided its effects; ``predicted_psnr``, this capture's probe plus the preset's gain;
@@ -21,9 +24,10 @@ captures' own held-out views, which every run fits around) and its F1@0.01 again
 capture's true mesh. Prints a table, the median and worst absolute errors, and writes
 ``OUT/plan.json``. Target (issue #23): time within ±30 %, accuracy within 2 dB or 0.03 F1.
 
-``--calibrate`` runs the ``TRAINING`` captures instead (five others, of the same kinds) and
-writes the preset's gain, the median of (last held-out PSNR − probe) over them, into
-``backend/forecast.json`` (``--gains-file``), keeping the other presets' entries."""
+``--calibrate`` runs the ``TRAINING`` captures instead (seven others, of the same kinds) and
+writes the preset's gain, the median of (last held-out PSNR − probe) over them and over
+those of each kind of lighting, into ``backend/forecast.json`` (``--gains-file``), keeping the
+other presets' entries."""
 
 from __future__ import annotations
 
@@ -222,11 +226,24 @@ def write_gain(path: Path, preset: str, rows: list[dict], doc: dict) -> None:
     except (OSError, ValueError):
         old = {}
     presets = dict(old.get("presets") or {})
-    median = statistics.median(gains)
-    presets[preset] = {"gain_db": round(median, 2), "spread_db": round(max(abs(g - median) for g in gains), 2),
-                       "captures": {r["capture"]: {k: r.get(k) for k in ("probe_psnr", "psnr", "gain_db")} for r in rows},
+    median, spread = _median_spread(gains)
+    kinds = {}
+    for kind in sorted({r.get("lighting_kind") for r in rows if r.get("gain_db") is not None} - {None}):
+        named = [r for r in rows if r.get("lighting_kind") == kind and r.get("gain_db") is not None]
+        kind_median, kind_spread = _median_spread([r["gain_db"] for r in named])
+        kinds[kind] = {"gain_db": kind_median, "spread_db": kind_spread, "captures": [r["capture"] for r in named]}
+    presets[preset] = {"gain_db": median, "spread_db": spread, "kinds": kinds,
+                       "captures": {r["capture"]: {k: r.get(k) for k in ("lighting_kind", "probe_psnr", "psnr", "gain_db")}
+                                    for r in rows},
                        "code": doc["code"], "measured": doc["measured"], "machine": doc["machine"]}
     fsio.write_json(path, {"about": "held-out PSNR gain of each preset over the capture's accuracy probe "
                                     "(optimize/forecast.py); python -m backend bench plan --calibrate --preset P",
                            "presets": presets})
-    print(f"{preset}: gain {median:+.2f} dB over {len(gains)} captures -> {path}", flush=True)
+    per_kind = ", ".join(f"{k} {v['gain_db']:+.2f} dB over {len(v['captures'])}" for k, v in kinds.items())
+    print(f"{preset}: gain {median:+.2f} dB over {len(gains)} captures ({per_kind}) -> {path}", flush=True)
+
+
+def _median_spread(gains: list[float]) -> tuple[float, float]:
+    """The median gain and the largest distance from it, rounded to 0.01 dB."""
+    median = statistics.median(gains)
+    return round(median, 2), round(max(abs(g - median) for g in gains), 2)

@@ -232,7 +232,7 @@ def make_plan(capture, configs: dict, settings, staged: bool, calibration: dict 
     ReconstructConfig}); ``settings``: the geometry steps' RenderSettings; ``calibration``:
     {preset: calibration entry}; ``initial``: the run's initial mesh (None: icospheres);
     ``probe``: forecast.probe's measurement, for each preset's predicted held-out PSNR."""
-    from .forecast import load_gains, predicted_psnr
+    from .forecast import gain, load_gains, predicted_psnr
     from .views import ViewSet
 
     largest = max(c.max_size for c in configs.values())
@@ -247,7 +247,7 @@ def make_plan(capture, configs: dict, settings, staged: bool, calibration: dict 
     gains = load_gains()
     for name, p in presets.items():
         p.predicted_psnr = predicted_psnr(probe, name, gains)
-        p.psnr_spread = gains.get(name, {}).get("spread_db") if p.predicted_psnr is not None else None
+        p.psnr_spread = None if p.predicted_psnr is None else gain(gains, name, probe.get("lighting_kind"))[1]
         p.fixed_s += (probe or {}).get("seconds", 0.0)  # a run probes again before its first step
     return Plan(costs, presets, dataclasses.asdict(settings), probe)
 

@@ -31,6 +31,7 @@ def test_the_probe_scores_the_held_out_views_as_the_tracker_does(tiny):
     assert probed is not None and probed["source"] == "ground truth" and probed["views"] == 2
     assert 12.0 < probed["psnr"] < 45.0  # a fitted grey-to-diffuse material on the visual hull
     assert probed["cycles"] >= 2 and probed["faces"] <= 500 and probed["seconds"] > 0
+    assert probed["lighting_kind"] == "point"  # the tiny capture's point lights: its kind's gain applies
     assert (len(capture.frames), capture.environment) == before  # the capture is not touched
 
 
@@ -54,6 +55,42 @@ def test_the_prediction_is_the_probe_plus_the_presets_gain(tmp_path):
     assert forecast.predicted_psnr(None, "draft", gains) is None
 
 
+def test_a_kind_of_lighting_with_enough_captures_has_its_own_gain(tmp_path):
+    path = tmp_path / "forecast.json"
+    path.write_text(json.dumps({"presets": {"draft": {
+        "gain_db": 3.0, "spread_db": 2.5,
+        "kinds": {"point": {"gain_db": 5.0, "spread_db": 0.2, "captures": ["a", "b"]},
+                  "environment": {"gain_db": 1.0, "spread_db": 0.0, "captures": ["c"]}}}}}))
+    gains = forecast.load_gains(path)
+    assert forecast.predicted_psnr({"psnr": 20.0, "lighting_kind": "point"}, "draft", gains) == 25.0
+    # one capture of a kind is not a median: the one over all kinds
+    assert forecast.predicted_psnr({"psnr": 20.0, "lighting_kind": "environment"}, "draft", gains) == 23.0
+    assert forecast.predicted_psnr({"psnr": 20.0}, "draft", gains) == 23.0  # a probe from before kinds
+    # a spread narrower than a run's own spread is not promised
+    assert forecast.gain(gains, "draft", "point") == (5.0, forecast.SPREAD_FLOOR_DB)
+    assert forecast.gain(gains, "draft", "environment") == (3.0, 2.5)
+    assert forecast.gain(gains, "final", "point") is None
+
+
+def test_calibration_writes_a_gain_per_kind_of_lighting(tmp_path):
+    from backend.bench import plan as bench_plan
+
+    rows = [{"capture": "p1", "lighting_kind": "point", "probe_psnr": 20.0, "psnr": 23.0, "gain_db": 3.0},
+            {"capture": "p2", "lighting_kind": "point", "probe_psnr": 20.0, "psnr": 26.0, "gain_db": 6.0},
+            {"capture": "p3", "lighting_kind": "point", "probe_psnr": 20.0, "psnr": 25.0, "gain_db": 5.0},
+            {"capture": "e1", "lighting_kind": "environment", "probe_psnr": 18.0, "psnr": 20.5, "gain_db": 2.5},
+            {"capture": "e2", "lighting_kind": "environment", "probe_psnr": 18.0, "psnr": 21.0, "gain_db": 3.0},
+            {"capture": "x", "lighting_kind": "point", "rc": 1}]  # a failed run counts nowhere
+    path = tmp_path / "forecast.json"
+    path.write_text(json.dumps({"presets": {"balanced": {"gain_db": 2.0, "spread_db": 1.0, "captures": {}}}}))
+    bench_plan.write_gain(path, "draft", rows, {"code": "abc", "measured": "now", "machine": {}})
+    entry = forecast.load_gains(path)["draft"]
+    assert entry["gain_db"] == 3.0 and entry["spread_db"] == 3.0  # over all five: 2.5, 3, 3, 5, 6
+    assert entry["kinds"]["point"] == {"gain_db": 5.0, "spread_db": 2.0, "captures": ["p1", "p2", "p3"]}
+    assert entry["kinds"]["environment"]["gain_db"] == 2.75 and entry["kinds"]["environment"]["captures"] == ["e1", "e2"]
+    assert forecast.load_gains(path)["balanced"]["gain_db"] == 2.0  # other presets kept
+
+
 def test_the_shipped_gains_name_their_captures_and_code():
     gains = forecast.load_gains()
     assert gains, "backend/forecast.json: run python -m backend bench plan --calibrate --preset draft"
@@ -61,6 +98,10 @@ def test_the_shipped_gains_name_their_captures_and_code():
         assert len(entry["captures"]) >= 4 and entry["spread_db"] >= 0 and entry["code"]
         median = sorted(c["gain_db"] for c in entry["captures"].values())
         assert min(median) <= entry["gain_db"] <= max(median)
+        for kind, sub in (entry.get("kinds") or {}).items():
+            own = [entry["captures"][name]["gain_db"] for name in sub["captures"]]
+            assert all(entry["captures"][name]["lighting_kind"] == kind for name in sub["captures"])
+            assert min(own) <= sub["gain_db"] <= max(own)
 
 
 def test_plan_and_preset_event_carry_the_predicted_psnr(tiny_capture, tmp_path):
@@ -75,8 +116,9 @@ def test_plan_and_preset_event_carry_the_predicted_psnr(tiny_capture, tmp_path):
         expected = forecast.predicted_psnr(event["probe"], name, gains)
         assert p["predicted_psnr"] == expected
         if expected is not None:  # "Draft ≈ 2.1 min (≈ 24 ± 3 dB)"
-            assert f"\u2248 {expected:.0f} \u00b1 {gains[name]['spread_db']:.0f} dB)" in event["line"]
-            assert p["psnr_spread"] == gains[name]["spread_db"]
+            spread = forecast.gain(gains, name, event["probe"]["lighting_kind"])[1]
+            assert f"\u2248 {expected:.0f} \u00b1 {spread:.0f} dB)" in event["line"]
+            assert p["psnr_spread"] == spread
     run = tmp_path / "run"
     proc = run_cli("reconstruct", tiny_capture, "--out", run, "--preset", "draft", "--iterations", 4,
                    "--track-accuracy", env=env, timeout=300)
