@@ -190,10 +190,15 @@ def add_arguments(parser) -> None:
     parser.add_argument("--gains-file", type=Path, default=GAINS_FILE, help="where --calibrate writes (default: %(default)s)")
     parser.add_argument("--iterations", type=int, help="cap every run's steps (a smoke test; default: none)")
     parser.add_argument("--variant", help="Mitsuba variant (default: automatic)")
+    parser.add_argument("--replan", action="store_true",
+                        help="run nothing: predict the time of OUT's finished runs again with the current cost model, "
+                             "from their recorded step costs, into OUT/replan.json")
 
 
 def run(args) -> int:
     emit = Emitter()
+    if args.replan:
+        return _replan(args, emit)
     known = TRAINING if args.calibrate else CAPTURES
     names = [n.strip() for n in (args.captures or ",".join(known)).split(",") if n.strip()]
     unknown = [n for n in names if n not in known and n not in SMOKE]
@@ -247,3 +252,18 @@ def _median_spread(gains: list[float]) -> tuple[float, float]:
     """The median gain and the largest distance from it, rounded to 0.01 dB."""
     median = statistics.median(gains)
     return round(median, 2), round(max(abs(g - median) for g in gains), 2)
+
+
+def _replan(args, emit) -> int:
+    from ._replan import replan_rows
+
+    source = args.out / "plan.json"
+    require(source.is_file(), source, "no finished bench plan here", "run bench plan --out OUT first")
+    doc = json.loads(source.read_text())
+    rows = replan_rows(args.out, doc["rows"])
+    fresh = {**doc, "rows": rows, "summary": summary(rows), "replanned": {"code": code_version(),
+                                                                           "measured": time.strftime("%Y-%m-%dT%H:%M:%S")}}
+    fsio.write_json(args.out / "replan.json", fresh)
+    print(table(rows), flush=True)
+    emit("done", result=str(args.out / "replan.json"), **fresh["summary"])
+    return 0

@@ -22,6 +22,18 @@ def test_bench_plan_compares_the_promise_with_the_run(tmp_path):
     assert row["effects"] is not None and set(row["plan"]) == {"geometry_s", "material_s", "polish_s", "fixed_s"}
     assert doc["summary"]["runs"] == 1 and doc["summary"]["time_median_abs_error"] == abs(row["time_error"])
     assert "tiny" in proc.stdout and "predicted min" in proc.stdout
+    # --replan: the same model on the recorded step costs gives the run's own promise back
+    proc = run_cli("bench", "plan", "--out", out, "--replan", timeout=300)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    (again,) = json.loads((out / "replan.json").read_text())["rows"]
+    assert again["recorded_minutes"] == row["predicted_minutes"]
+    assert abs(again["predicted_minutes"] - row["predicted_minutes"]) <= 0.01
+
+
+def test_replan_needs_a_finished_bench(tmp_path):
+    proc = run_cli("bench", "plan", "--out", tmp_path / "none", "--replan", timeout=120)
+    assert proc.returncode == 2 and "no finished bench plan here" in proc.stderr
+    assert "Traceback" not in proc.stderr
 
 
 def test_summary_counts_what_is_within_the_targets():
