@@ -22,9 +22,7 @@ level are the calibration run's (``presets.json``), else ``max_levels`` x ``leve
 With the staged material (the default) every level is followed by one material cycle of
 ``FitSettings.iterations`` one-view steps and a full-view evaluation, geometry convergence by
 ``FINAL_MATERIAL_CYCLES`` cycles four times as long, and ``POLISH_ROUNDS`` (at most
-``polish_rounds``) polish rounds of ``POLISH_STEPS`` steps, each with a refinement cycle.
-Steps after level 0 cost ``REFINED_STEP_FACTOR`` times the timed step, polish steps
-``POLISH_STEP_FACTOR`` times (what the timed split mesh and constant material miss). A
+``polish_rounds``) polish rounds of ``POLISH_STEPS`` steps, each with a refinement cycle. A
 fitted lighting (``estimate``, ``flash``) adds ``light_first_cycles`` cycles before level 0.
 ``FIXED_SECONDS`` covers start, loading, initialisation and the effects decision. A time
 budget or an iteration cap cuts the prediction where the run would stop.
@@ -53,13 +51,7 @@ FIXED_SECONDS = 15.0  # process start, loading, initial mesh, effects decision, 
 # convergence, so runs differ, and they are the main source of the plan's error
 FINAL_MATERIAL_CYCLES = 4.5  # long cycles (x4 iterations) on the converged geometry before polishing
 POLISH_ROUNDS = 2.5  # each followed by one long refinement cycle
-POLISH_STEPS = 190  # steps per polish round (at most level_iterations x polish_length)
-# A step on a surface the levels refined costs more than the same step timed on the initial
-# mesh split 1-to-4 (a split mesh keeps the initial mesh's few silhouette edges), and a polish
-# step more again (the finished textured, specular material): means of real / timed step over
-# the training captures of ``bench plan --calibrate`` (docs/results.md, "Predicted time")
-REFINED_STEP_FACTOR = 1.3  # levels after the first
-POLISH_STEP_FACTOR = 1.55
+POLISH_STEPS = 170  # steps per polish round (at most level_iterations x polish_length)
 MATERIAL_ITERATIONS = 40  # FitSettings.iterations
 # a material iteration's own work beyond render and gradient (Adam, smoothness, highlight weights)
 MATERIAL_OVERHEAD_S = 0.03
@@ -155,7 +147,7 @@ def predict(name: str, config, costs: StepCosts, pixels_at, n_views: int, staged
     for lv in plan:
         p = pixels_at(lv.size)
         step = c.views_per_step * costs("gradient", p, lv.faces) + 2 * val * costs("forward", p, lv.faces) / c.eval_every
-        lv.seconds = lv.steps * step * (REFINED_STEP_FACTOR if lv.level else 1.0) + 2 * val * costs("forward", p, lv.faces)
+        lv.seconds = lv.steps * step + 2 * val * costs("forward", p, lv.faces)
         geometry += lv.seconds
         if staged:
             material += cycle_seconds(costs, p, lv.faces, n_views)
@@ -169,7 +161,7 @@ def predict(name: str, config, costs: StepCosts, pixels_at, n_views: int, staged
         step = c.views_per_step * costs("gradient", p, last.faces) + 2 * val * costs("forward", p, last.faces) / c.eval_every
         steps = min(POLISH_STEPS, c.level_iterations * c.polish_length)
         rounds = min(POLISH_ROUNDS, c.polish_rounds)
-        polish = rounds * (steps * step * POLISH_STEP_FACTOR + cycle_seconds(costs, p, last.faces, n_views, scale=4))
+        polish = rounds * (steps * step + cycle_seconds(costs, p, last.faces, n_views, scale=4))
     return PresetPlan(name, plan, source, geometry, material, polish, FIXED_SECONDS, c.time_budget_s,
                       (entry or {}).get("expected_f1"))
 

@@ -98,28 +98,6 @@ def test_a_fitted_lighting_is_charged_its_cycles_on_the_initial_mesh():
     assert b.geometry_s == pytest.approx(a.geometry_s)
 
 
-def test_steps_on_a_refined_surface_and_polish_steps_are_charged_more_than_the_timed_step():
-    """The timed step runs on the initial mesh split 1-to-4 under a constant material; the
-    plan charges later levels and polish rounds the factors measured on real runs."""
-    costs = plan.StepCosts([plan.Point(32, 1024, 500, 0.02, 0.01, 0.015), plan.Point(64, 4096, 500, 0.05, 0.02, 0.03),
-                            plan.Point(32, 1024, 4000, 0.03, 0.012, 0.02), plan.Point(64, 4096, 4000, 0.07, 0.03, 0.04)])
-    pixels_at = lambda size: size * size  # noqa: E731
-    config = ReconstructConfig(**PRESETS["draft"], material="staged")
-    p = plan.predict("draft", config, costs, pixels_at, 8, staged=True)
-    val = len(plan.validation_views(8, config.validation_views))
-
-    def step(lv):
-        px = pixels_at(lv.size)
-        return (config.views_per_step * costs("gradient", px, lv.faces)
-                + 2 * val * costs("forward", px, lv.faces) / config.eval_every)
-
-    fixed = [2 * val * costs("forward", pixels_at(lv.size), lv.faces) for lv in p.levels]
-    assert len(p.levels) >= 2 and plan.REFINED_STEP_FACTOR > 1 and plan.POLISH_STEP_FACTOR > 1
-    assert p.levels[0].seconds == pytest.approx(p.levels[0].steps * step(p.levels[0]) + fixed[0])
-    for lv, f in zip(p.levels[1:], fixed[1:]):
-        assert lv.seconds == pytest.approx(lv.steps * step(lv) * plan.REFINED_STEP_FACTOR + f)
-
-
 def test_shadow_gradients_are_charged_at_the_samples_a_level_keeps(tmp_path):
     """Under an environment map with shadow gradients the plan times the geometry step with and
     without them and charges the count a level keeps (the arithmetic: test_shadow_samples.py)."""
