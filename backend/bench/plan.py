@@ -12,7 +12,7 @@ other:
 - ``teacup48``: the teacup (a concavity the visual hull fills), point lights;
 - ``arma_env64``: the armadillo under ``forest_slope`` (self-shadowing: shadow gradients);
 - ``spot_flash48``: Spot with a texture, lit by a flash at each camera;
-- five more, added when the gains became per kind of lighting and unseen by it: the happy
+- five more, new in the eighth session and unseen by every constant and choice before: the happy
   Buddha under ``venice_sunset``, the Stanford dragon under a flash, Spot under
   ``studio_small_03``, the teacup under ``forest_slope`` and the armadillo under point lights.
 
@@ -25,9 +25,9 @@ capture's true mesh. Prints a table, the median and worst absolute errors, and w
 ``OUT/plan.json``. Target (issue #23): time within ±30 %, accuracy within 2 dB or 0.03 F1.
 
 ``--calibrate`` runs the ``TRAINING`` captures instead (seven others, of the same kinds) and
-writes the preset's gain, the median of (last held-out PSNR − probe) over them and over
-those of each kind of lighting, into ``backend/forecast.json`` (``--gains-file``), keeping the
-other presets' entries."""
+writes the preset's gain, the median of (last held-out PSNR − probe) over them, into
+``backend/forecast.json`` (``--gains-file``), keeping the other presets' entries; the medians
+over each kind of lighting are recorded beside it (not used to predict)."""
 
 from __future__ import annotations
 
@@ -57,7 +57,7 @@ CAPTURES = {
                    "--lighting", "env", "--env", ENVMAPS / "forest_slope_1k.hdr", "--albedo", "pattern"],
     "spot_flash48": ["--mesh", MESHES / "crane" / "spot" / "spot.obj", "--up", "y", "--views", 12, "--resolution", 48,
                      "--lighting", "flash", "--albedo", "pattern"],
-    # five more, new when the gains became per kind of lighting: none of them set anything either
+    # five more, new in the eighth session: none of them set anything either
     "buddha_env64": ["--mesh", MESHES / "stanford" / "happy_buddha_vrip_res3.ply", "--up", "y", "--views", 14,
                      "--resolution", 64, "--lighting", "env", "--env", ENVMAPS / "venice_sunset_1k.hdr"],
     "sdragon_flash48": ["--mesh", MESHES / "stanford" / "dragon_watertight_100k.obj", "--up", "y", "--views", 12,
@@ -80,7 +80,7 @@ TRAINING = {
     "blob_flash48": ["--views", 10, "--resolution", 48, "--lighting", "flash"],
     "sbunny_env64": ["--mesh", MESHES / "stanford" / "bunny_watertight.obj", "--up", "y", "--views", 14,
                      "--resolution", 64, "--lighting", "env", "--env", ENVMAPS / "forest_slope_1k.hdr"],
-    # two more, so that each kind of lighting has a median of its own (forecast.py)
+    # two more, so that each kind of lighting has more than one (their medians are recorded)
     "dragon_env48": ["--mesh", MESHES / "shapefromtracing" / "dragon.obj", "--up", "y", "--views", 10, "--resolution", 48,
                      "--lighting", "env", "--env", ENVMAPS / "studio_small_03_1k.hdr"],
     "bob_flash48": ["--mesh", MESHES / "crane" / "bob" / "bob_tri.obj", "--up", "y", "--views", 10, "--resolution", 48,

@@ -9,18 +9,16 @@ the prediction starts from a measurement on the capture itself:
                        cycles fitted (the constant stage, then one diffuse cycle, at the
                        coarse size, under the run's lighting: captured, or estimated / flash
                        fitted with it as the run fits it)
-    predicted(preset) = probe + gain(preset, kind of lighting)
+    predicted(preset) = probe + gain(preset)
 
 ``probe`` measures what the capture's appearance allows on the starting shape; ``gain`` is
 what the preset's geometry levels, finer textures and specular stage add on top of that,
 calibrated as the median over captures that are not used to test the prediction
 (``GAINS_FILE``, with the largest distance from that median as the prediction's spread;
-``bench plan`` compares predicted and measured on others). The median is taken per kind of
-lighting (``presets.lighting_kind``: an environment map, or lights fixed to the cameras) when
-the kind has ``MIN_KIND_CAPTURES`` calibration captures, else over all of them: under one
-light direction per view the shading shows the surface's normals, so the levels' refined
-shape buys more held-out PSNR than under a map's broad light, whose shading hides them. Held-out views
-are those ``--track-accuracy`` scores (``accuracy.split``: the capture's ground-truth held-out
+``bench plan`` compares predicted and measured on ten others). One median serves every kind
+of lighting: a median per kind (an environment map, or lights fixed to the cameras) is
+recorded in the file but did worse on the held-out captures (docs/results.md, "Predicted
+time"). Held-out views are those ``--track-accuracy`` scores (``accuracy.split``: the capture's ground-truth held-out
 views, else every ``held_out_every``-th view, left out of the probe's fit), rendered as the
 tracker renders them, so that the prediction and the run's ``accuracy_time`` measure the same
 thing. The probe runs on copies: the run's material, lighting and capture are not touched."""
@@ -34,7 +32,6 @@ import time
 from pathlib import Path
 
 SPREAD_FLOOR_DB = 1.0  # a run's held-out PSNR moves by up to about this much run to run: no narrower promise
-MIN_KIND_CAPTURES = 2  # fewer calibration captures of a kind than this: the median over all kinds
 PROBE_CYCLES = 8  # most material cycles the probe runs (the constant stage ends sooner: MaterialSchedule)
 GAINS_FILE = Path(__file__).resolve().parents[1] / "forecast.json"  # written by ``bench plan --calibrate``
 
@@ -96,23 +93,19 @@ def load_gains(path: Path = GAINS_FILE) -> dict:
     return {k: v for k, v in (presets or {}).items() if isinstance(v, dict) and isinstance(v.get("gain_db"), (int, float))}
 
 
-def gain(gains: dict, preset: str, kind: str | None = None) -> tuple[float, float | None] | None:
-    """(gain, spread) in dB of ``preset`` for a capture lit as ``kind``: that kind's calibration
-    when it has at least ``MIN_KIND_CAPTURES`` captures, else the median over all; None when the
+def gain(gains: dict, preset: str) -> tuple[float, float | None] | None:
+    """(gain, spread) in dB of ``preset``, the spread at least ``SPREAD_FLOOR_DB``; None when the
     preset has no calibrated gain."""
     entry = gains.get(preset)
     if not entry:
         return None
-    sub = (entry.get("kinds") or {}).get(kind) if kind else None
-    if isinstance(sub, dict) and len(sub.get("captures") or []) >= MIN_KIND_CAPTURES:
-        entry = sub
     spread = entry.get("spread_db")
     return float(entry["gain_db"]), None if spread is None else max(float(spread), SPREAD_FLOOR_DB)
 
 
 def predicted_psnr(probed: dict | None, preset: str, gains: dict | None = None) -> float | None:
-    """The held-out PSNR ``preset`` is expected to reach: the probe's plus the preset's gain for
-    the probe's kind of lighting (None without a probe or a calibrated gain)."""
+    """The held-out PSNR ``preset`` is expected to reach: the probe's plus the preset's gain
+    (None without a probe or a calibrated gain)."""
     gains = load_gains() if gains is None else gains
-    found = None if probed is None else gain(gains, preset, probed.get("lighting_kind"))
+    found = None if probed is None else gain(gains, preset)
     return None if found is None else round(probed["psnr"] + found[0], 2)
