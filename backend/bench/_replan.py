@@ -3,11 +3,10 @@ been promised by the current cost model (optimize/plan.py) and gains (optimize/f
 from the step costs and the probe it recorded.
 
 A run's plan is a function of its measured step costs (the ``preset`` event's ``plan.costs``),
-its settings, its capture's views and the calibration's levels, so changing the model's
-constants (the finishing stages' counts, the factors on refined and polish steps) can be
-checked on runs already made, without timing them again. The probe's seconds are added as a
-run adds them. Likewise the predicted PSNR is the recorded probe plus the current gain of the
-run's kind of lighting."""
+its settings, its capture's views and the calibration's levels, so a change to the model
+(the finishing stages' counts, what a step costs) can be checked on runs already made,
+without timing them again. The probe's seconds are added as a run adds them. Likewise the
+predicted PSNR is the recorded probe plus the current gain."""
 
 from __future__ import annotations
 

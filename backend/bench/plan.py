@@ -12,7 +12,7 @@ other:
 - ``teacup48``: the teacup (a concavity the visual hull fills), point lights;
 - ``arma_env64``: the armadillo under ``forest_slope`` (self-shadowing: shadow gradients);
 - ``spot_flash48``: Spot with a texture, lit by a flash at each camera;
-- five more, new in the eighth session and unseen by every constant and choice before: the happy
+- five more, added on 2026-11-29 and unseen by every constant and choice before: the happy
   Buddha under ``venice_sunset``, the Stanford dragon under a flash, Spot under
   ``studio_small_03``, the teacup under ``forest_slope`` and the armadillo under point lights.
 
@@ -57,7 +57,7 @@ CAPTURES = {
                    "--lighting", "env", "--env", ENVMAPS / "forest_slope_1k.hdr", "--albedo", "pattern"],
     "spot_flash48": ["--mesh", MESHES / "crane" / "spot" / "spot.obj", "--up", "y", "--views", 12, "--resolution", 48,
                      "--lighting", "flash", "--albedo", "pattern"],
-    # five more, new in the eighth session: none of them set anything either
+    # five more, added on 2026-11-29: none of them set anything either
     "buddha_env64": ["--mesh", MESHES / "stanford" / "happy_buddha_vrip_res3.ply", "--up", "y", "--views", 14,
                      "--resolution", 64, "--lighting", "env", "--env", ENVMAPS / "venice_sunset_1k.hdr"],
     "sdragon_flash48": ["--mesh", MESHES / "stanford" / "dragon_watertight_100k.obj", "--up", "y", "--views", 12,
@@ -191,8 +191,9 @@ def add_arguments(parser) -> None:
     parser.add_argument("--iterations", type=int, help="cap every run's steps (a smoke test; default: none)")
     parser.add_argument("--variant", help="Mitsuba variant (default: automatic)")
     parser.add_argument("--replan", action="store_true",
-                        help="run nothing: predict the time of OUT's finished runs again with the current cost model, "
-                             "from their recorded step costs, into OUT/replan.json")
+                        help="run nothing: predict the time and held-out PSNR of OUT's finished runs again with the "
+                             "current cost model and gains, from their recorded step costs and probes, into "
+                             "OUT/replan.json")
 
 
 def run(args) -> int:
