@@ -18,10 +18,10 @@ calibrated as the median over captures that are not used to test the prediction
 ``bench plan`` compares predicted and measured on ten others). One median serves every kind
 of lighting: a median per kind (an environment map, or lights fixed to the cameras) is
 recorded in the file but did worse on the held-out captures (docs/results.md, "Predicted
-time"). Held-out views are those ``--track-accuracy`` scores (``accuracy.split``: the capture's ground-truth held-out
-views, else every ``held_out_every``-th view, left out of the probe's fit), rendered as the
-tracker renders them, so that the prediction and the run's ``accuracy_time`` measure the same
-thing. The probe runs on copies: the run's material, lighting and capture are not touched."""
+time"). Held-out views are those ``--track-accuracy`` scores (``accuracy.split``: the
+capture's ground-truth held-out views, else every ``held_out_every``-th view, left out of the
+probe's fit), rendered as the tracker renders them, so that the prediction and the run's
+``accuracy_time`` measure the same thing. The probe runs on copies: the run's material, lighting and capture are not touched."""
 
 from __future__ import annotations
 

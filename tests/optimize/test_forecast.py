@@ -68,7 +68,7 @@ def test_one_median_serves_every_kind_of_lighting_and_the_spread_has_a_floor(tmp
     assert forecast.gain(gains, "final") is None
 
 
-def test_calibration_writes_a_gain_per_kind_of_lighting(tmp_path):
+def test_calibration_writes_the_median_gain_and_records_each_kind_of_lightings(tmp_path):
     from backend.bench import plan as bench_plan
 
     rows = [{"capture": "p1", "lighting_kind": "point", "probe_psnr": 20.0, "psnr": 23.0, "gain_db": 3.0},
