@@ -13,20 +13,19 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+from .sweep import load_history
+
 
 def replan(run: Path, capture: Path) -> float:
-    """Predicted minutes of the run in ``run`` (its events and report) on ``capture``."""
-    from .. import variant
-
-    variant.choose()
+    """Predicted minutes of the run in ``run`` (its events and report) on ``capture``; the
+    Mitsuba variant must be chosen (``replan_rows`` does)."""
     from ..capture.load import load_capture
     from ..optimize import plan
     from ..optimize.config import ReconstructConfig
     from ..optimize.presets import calibrated
     from ..optimize.views import ViewSet
 
-    events = [json.loads(line) for line in (run / "events.jsonl").read_text().splitlines() if line.strip()]
-    preset = next(e for e in events if e["event"] == "preset")
+    preset = next(e for e in load_history(run / "events.jsonl") if e["event"] == "preset")
     config = ReconstructConfig(**json.loads((run / "report.json").read_text())["settings"])
     viewset = ViewSet(load_capture(capture), config.max_size)
     costs = plan.StepCosts([plan.Point(**p) for p in preset["plan"]["costs"]["points"]])
@@ -41,8 +40,10 @@ def replan_rows(out: Path, rows: list[dict]) -> list[dict]:
     """``rows`` (plan.json's) with ``predicted_minutes``, ``time_error``, ``predicted_psnr`` and
     ``psnr_error`` from the current model and gains; the recorded promises kept as
     ``recorded_minutes`` and ``recorded_psnr``."""
+    from .. import variant
     from ..optimize.forecast import predicted_psnr
 
+    variant.choose()
     fresh = []
     for row in rows:
         row = dict(row)

@@ -44,7 +44,7 @@ from ..events import Emitter
 from ..optimize.forecast import GAINS_FILE
 from ._data import SHARED_DATA
 from ._machine import code_version, machine
-from .sweep import REPO, Setting, reconstruct_child
+from .sweep import REPO, Setting, load_history, reconstruct_child
 
 MESHES = SHARED_DATA / "meshes"
 ENVMAPS = SHARED_DATA / "envmaps"
@@ -126,7 +126,7 @@ def measure(name: str, capture: Path, preset: str, out: Path, variant: str | Non
            "load_after": timing["load_after"]}
     if timing["rc"] != 0:
         return row
-    events = [json.loads(line) for line in (run / "events.jsonl").read_text().splitlines() if line.strip()]
+    events = load_history(run / "events.jsonl")
     promise = next(e for e in events if e["event"] == "preset")
     effects = next((e for e in events if e["event"] == "effects"), {})
     report = json.loads((run / "report.json").read_text())
