@@ -6,7 +6,8 @@ A run's plan is a function of its measured step costs (the ``preset`` event's ``
 its settings, its capture's views and the calibration's levels, so a change to the model
 (the finishing stages' counts, what a step costs) can be checked on runs already made,
 without timing them again. The probe's seconds are added as a run adds them. Likewise the
-predicted PSNR is the recorded probe plus the current gain."""
+predicted PSNR is the recorded probe plus the current gain, and the time left during the run
+(optimize/remaining.py) is its events replayed through the current code."""
 
 from __future__ import annotations
 
@@ -16,16 +17,21 @@ from pathlib import Path
 from .sweep import load_history
 
 
-def replan(run: Path, capture: Path) -> float:
-    """Predicted minutes of the run in ``run`` (its events and report) on ``capture``; the
-    Mitsuba variant must be chosen (``replan_rows`` does)."""
+CHECKPOINTS = (0.25, 0.5, 0.75)  # shares of a run's time after its plan, where the time left is judged
+
+
+def replan(run: Path, capture: Path) -> tuple[float, dict, dict]:
+    """Predicted minutes of the run in ``run`` (its events and report) on ``capture``, and the
+    errors of its time left at the CHECKPOINTS, replayed (``live_errors``) and as its progress
+    events recorded them; the Mitsuba variant must be chosen (``replan_rows`` does)."""
     from ..capture.load import load_capture
     from ..optimize import plan
     from ..optimize.config import ReconstructConfig
     from ..optimize.presets import calibrated
     from ..optimize.views import ViewSet
 
-    preset = next(e for e in load_history(run / "events.jsonl") if e["event"] == "preset")
+    events = load_history(run / "events.jsonl")
+    preset = next(e for e in events if e["event"] == "preset")
     config = ReconstructConfig(**json.loads((run / "report.json").read_text())["settings"])
     viewset = ViewSet(load_capture(capture), config.max_size)
     costs = plan.StepCosts([plan.Point(**p) for p in preset["plan"]["costs"]["points"]])
@@ -33,13 +39,40 @@ def replan(run: Path, capture: Path) -> float:
     predicted = plan.predict(preset["preset"], config, costs, plan.pixels_for(viewset), len(viewset),
                              config.material == "staged", entry)
     predicted.fixed_s += (preset.get("probe") or {}).get("seconds", 0.0)
-    return round(predicted.minutes, 2)
+    return round(predicted.minutes, 2), *live_errors(events, predicted, config.time_budget_s)
+
+
+def live_errors(events: list[dict], predicted, budget_s: float | None = None) -> tuple[dict, dict]:
+    """At each of the CHECKPOINTS (a share of the time from the ``preset`` event to the last
+    event): the end the time left points to, over the real end, less 1. First replayed through
+    optimize/remaining.py with the phases of ``predicted`` (a PresetPlan), then as the run's
+    own progress events said it (their last ``eta_s`` before the checkpoint)."""
+    from ..optimize.remaining import Remaining
+
+    start = next(e["time"] for e in events if e["event"] == "preset")
+    end = events[-1]["time"]
+    replayed, recorded = {}, {}
+    for share in CHECKPOINTS:
+        at = start + share * (end - start)
+        remaining, said = Remaining.from_plan(predicted, budget_s), None
+        for e in events:
+            if e["time"] > at:
+                break
+            if e["time"] >= start:
+                remaining.observe(e["event"], e, e["time"])
+            if e["event"] == "progress" and e.get("eta_s") is not None:
+                said = e["time"] + e["eta_s"]
+        left = remaining.seconds(at)
+        replayed[str(share)] = None if left is None else round((at + left) / end - 1, 3)
+        recorded[str(share)] = None if said is None else round(said / end - 1, 3)
+    return replayed, recorded
 
 
 def replan_rows(out: Path, rows: list[dict]) -> list[dict]:
-    """``rows`` (plan.json's) with ``predicted_minutes``, ``time_error``, ``predicted_psnr`` and
-    ``psnr_error`` from the current model and gains; the recorded promises kept as
-    ``recorded_minutes`` and ``recorded_psnr``."""
+    """``rows`` (plan.json's) with ``predicted_minutes``, ``time_error``, ``live_error`` (the time
+    left at the CHECKPOINTS), ``predicted_psnr`` and ``psnr_error`` from the current model and
+    gains; the recorded promises kept as ``recorded_minutes``, ``recorded_eta_error`` and
+    ``recorded_psnr``."""
     from .. import variant
     from ..optimize.forecast import predicted_psnr
 
@@ -48,9 +81,10 @@ def replan_rows(out: Path, rows: list[dict]) -> list[dict]:
     for row in rows:
         row = dict(row)
         if row.get("rc") == 0 and row.get("predicted_minutes") is not None:
-            minutes = replan(out / "runs" / row["capture"], out / "captures" / row["capture"])
+            minutes, live, said = replan(out / "runs" / row["capture"], out / "captures" / row["capture"])
             row.update(recorded_minutes=row["predicted_minutes"], predicted_minutes=minutes,
-                       time_error=round(minutes * 60 / row["seconds"] - 1, 3))
+                       time_error=round(minutes * 60 / row["seconds"] - 1, 3), live_error=live,
+                       recorded_eta_error=said)
         if row.get("probe_psnr") is not None:
             psnr = predicted_psnr({"psnr": row["probe_psnr"], "lighting_kind": row.get("lighting_kind")}, row["preset"])
             row.update(recorded_psnr=row.get("predicted_psnr"), predicted_psnr=psnr)

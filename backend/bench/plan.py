@@ -44,6 +44,7 @@ from ..events import Emitter
 from ..optimize.forecast import GAINS_FILE
 from ._data import SHARED_DATA
 from ._machine import code_version, machine
+from ._replan import CHECKPOINTS, live_errors
 from .sweep import REPO, Setting, load_history, reconstruct_child
 
 MESHES = SHARED_DATA / "meshes"
@@ -143,6 +144,8 @@ def measure(name: str, capture: Path, preset: str, out: Path, variant: str | Non
                plan=(promise.get("plan") or {}) and {k: promise["plan"][k] for k in
                                                      ("geometry_s", "material_s", "polish_s", "fixed_s")},
                measured=report.get("timings"))
+    if promise.get("plan"):  # the run's own time left at the checkpoints, as its progress events said it
+        row["recorded_eta_error"] = live_errors(events, promise["plan"], report["settings"].get("time_budget_s"))[1]
     if row["f1"] is not None and row["expected_f1"] is not None:
         row["f1_error"] = round(row["expected_f1"] - row["f1"], 4)
     if row["psnr"] is not None and row["predicted_psnr"] is not None:
@@ -156,7 +159,14 @@ def summary(rows: list[dict]) -> dict:
     errors = [abs(r["time_error"]) for r in rows if r.get("time_error") is not None]
     f1 = [abs(r["f1_error"]) for r in rows if r.get("f1_error") is not None]
     db = [abs(r["psnr_error"]) for r in rows if r.get("psnr_error") is not None]
-    return {"psnr_median_abs_error": round(statistics.median(db), 2) if db else None,
+    live = {}
+    for key in ("live_error", "recorded_eta_error"):  # the time left at each checkpoint: median and worst
+        for share in CHECKPOINTS:
+            got = [abs(r[key][str(share)]) for r in rows if (r.get(key) or {}).get(str(share)) is not None]
+            if got:
+                live.setdefault(key, {})[str(share)] = {"median": round(statistics.median(got), 3),
+                                                        "worst": round(max(got), 3)}
+    return {**live, "psnr_median_abs_error": round(statistics.median(db), 2) if db else None,
             "psnr_worst_abs_error": round(max(db), 2) if db else None,
             "psnr_within": sum(e <= PSNR_TOLERANCE for e in db),
             "time_median_abs_error": round(statistics.median(errors), 3) if errors else None,
@@ -177,6 +187,12 @@ def table(rows: list[dict]) -> str:
             "-" if r.get("time_error") is None else f"{100 * r['time_error']:+.0f} %", r.get("probe_psnr"),
             r.get("predicted_psnr"), r.get("psnr"), r.get("expected_f1"),
             r.get("f1"))))
+    for key, what in (("live_error", "time left (replayed)"), ("recorded_eta_error", "time left (as the run said)")):
+        if any(r.get(key) for r in rows):
+            lines.append(f"{what}: end it points to vs the real end, at " + ", ".join(f"{100 * c:.0f} %" for c in CHECKPOINTS)
+                         + " of the run")
+            lines += [f"  {r['capture']}: " + "  ".join("-" if v is None else f"{100 * v:+.0f} %" for v in r[key].values())
+                      for r in rows if r.get(key)]
     return "\n".join(lines)
 
 

@@ -17,6 +17,7 @@ class Budget:
         self.config, self.appearance, self.state = config, appearance, state
         self.t0 = time.perf_counter()
         self.excluded = 0.0
+        self.remaining = None  # optimize/remaining.Remaining, once the run has a plan
 
     def elapsed(self) -> float:
         return self.state.seconds_before + time.perf_counter() - self.t0 - self.excluded
@@ -31,8 +32,13 @@ class Budget:
             self.excluded += time.perf_counter() - start
 
     def fraction(self) -> float:
-        """The share of the run done, for the progress events' ETA."""
+        """The share of the run done, for the progress events' ETA: elapsed / (elapsed + the time
+        left) once the run has a plan (optimize/remaining.py), else from its steps or budget."""
         c, s = self.config, self.state
+        left = None if self.remaining is None else self.remaining.seconds(self.elapsed())
+        if left is not None:
+            elapsed = self.elapsed()
+            return min(0.999, elapsed / max(elapsed + left, 1e-9))
         estimates = []
         if c.iterations:
             estimates.append(s.iteration / c.iterations)

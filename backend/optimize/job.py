@@ -224,7 +224,7 @@ def _preset_event(args, emit, config, capture):
     the run will use; a resumed run announces it at once, without a plan."""
     preset = choose_preset(args)
 
-    def announce(capture, viewset=None, settings=None, material_settings=None, initial=None, held=None) -> None:
+    def announce(capture, viewset=None, settings=None, material_settings=None, initial=None, held=None):
         # expected_*: the figures of the calibration scene lit as this capture is (point lights or
         # an environment map; null where that kind is not calibrated); predicted_minutes: this
         # capture's own, from its measured step costs (optimize/plan.py)
@@ -253,6 +253,7 @@ def _preset_event(args, emit, config, capture):
                                              "render_settings": plan.settings},
              note=None if expected else f"no calibration scene lit as this capture is ({kind}); the time "
                                         "comes from this capture's measured steps")
+        return None if plan is None else plan.presets[preset]  # the run's time left follows it (optimize/remaining.py)
 
     if args.resume:
         announce(capture)

@@ -22,7 +22,8 @@ level are the calibration run's (``presets.json``), else ``max_levels`` x ``leve
 With the staged material (the default) every level is followed by one material cycle of
 ``FitSettings.iterations`` one-view steps and a full-view evaluation, geometry convergence by
 ``FINAL_MATERIAL_CYCLES`` cycles four times as long, and ``POLISH_ROUNDS`` (at most
-``polish_rounds``) polish rounds of ``POLISH_STEPS`` steps, each with a refinement cycle. A
+``polish_rounds``) polish rounds of ``POLISH_STEPS`` steps, each with a refinement cycle (not
+when an iteration cap ends the run with its levels). A
 fitted lighting (``estimate``, ``flash``) adds ``light_first_cycles`` cycles before level 0.
 ``FIXED_SECONDS`` covers start, loading, initialisation and the effects decision. A time
 budget or an iteration cap cuts the prediction where the run would stop.
@@ -42,6 +43,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..geometry.simplify import FaceBudget
+from .remaining import Phase
 from .schedule import level_size
 from .step_costs import MAX_PROBE_FACES, Point, StepCosts, fit, measure, pixels_for, probe_mesh  # noqa: F401 (the plan's API)
 from .views import validation_views
@@ -109,6 +111,7 @@ class PresetPlan:
     expected_f1: float | None = None  # on the calibration scene
     predicted_psnr: float | None = None  # held-out, from this capture's probe (optimize/forecast.py)
     psnr_spread: float | None = None  # the calibration captures' largest distance from their median gain
+    phases: list[Phase] = dataclasses.field(default_factory=list)  # in order, for optimize/remaining.py
 
     @property
     def unbounded_seconds(self) -> float:
@@ -133,7 +136,8 @@ class PresetPlan:
                 "geometry_s": round(self.geometry_s, 1), "material_s": round(self.material_s, 1),
                 "polish_s": round(self.polish_s, 1), "fixed_s": round(self.fixed_s, 1),
                 "levels": [lv.to_json() for lv in self.levels], "steps_from": self.steps_from,
-                "expected_f1": self.expected_f1, "predicted_psnr": self.predicted_psnr, "psnr_spread": self.psnr_spread}
+                "expected_f1": self.expected_f1, "predicted_psnr": self.predicted_psnr, "psnr_spread": self.psnr_spread,
+                "phases": [p.to_json() for p in self.phases]}
 
 
 def predict(name: str, config, costs: StepCosts, pixels_at, n_views: int, staged: bool,
@@ -144,26 +148,37 @@ def predict(name: str, config, costs: StepCosts, pixels_at, n_views: int, staged
     plan, source = levels(c, entry)
     val = len(validation_views(n_views, c.validation_views))
     geometry = material = 0.0
+    phases = []
+    long_units = 4 * MATERIAL_ITERATIONS
     for lv in plan:
         p = pixels_at(lv.size)
         step = c.views_per_step * costs("gradient", p, lv.faces) + 2 * val * costs("forward", p, lv.faces) / c.eval_every
         lv.seconds = lv.steps * step + 2 * val * costs("forward", p, lv.faces)
         geometry += lv.seconds
+        phases.append(Phase("level", lv.steps, lv.seconds / lv.steps, cap=c.level_iterations))
         if staged:
-            material += cycle_seconds(costs, p, lv.faces, n_views)
+            cycle = cycle_seconds(costs, p, lv.faces, n_views)
+            material += cycle
+            phases.append(Phase("cycle", MATERIAL_ITERATIONS, cycle / MATERIAL_ITERATIONS))
     polish = 0.0
     if staged and plan and c.lighting in ("estimate", "rig", "flash"):  # the lighting first, on the initial mesh
         material += c.light_first_cycles * cycle_seconds(costs, pixels_at(plan[0].size), plan[0].faces, n_views)
-    if staged and plan:
+    capped = c.iterations is not None and sum(lv.steps for lv in plan) >= c.iterations
+    if staged and plan and not capped:  # an iteration cap ends a run with its levels' cycles
         last = plan[-1]
         p = pixels_at(c.max_size)
-        material += FINAL_MATERIAL_CYCLES * cycle_seconds(costs, p, last.faces, n_views, scale=4)
+        long_cycle = cycle_seconds(costs, p, last.faces, n_views, scale=4)
+        material += FINAL_MATERIAL_CYCLES * long_cycle
+        phases.append(Phase("final", long_units, long_cycle / long_units, count=FINAL_MATERIAL_CYCLES))
         step = c.views_per_step * costs("gradient", p, last.faces) + 2 * val * costs("forward", p, last.faces) / c.eval_every
         steps = min(POLISH_STEPS, c.level_iterations * c.polish_length)
         rounds = min(POLISH_ROUNDS, c.polish_rounds)
-        polish = rounds * (steps * step + cycle_seconds(costs, p, last.faces, n_views, scale=4))
+        polish = rounds * (steps * step + long_cycle)
+        if rounds > 0:
+            phases.append(Phase("polish", steps, step, cap=c.level_iterations * c.polish_length, count=rounds,
+                                cycle_units=long_units, cycle_s=long_cycle / long_units))
     return PresetPlan(name, plan, source, geometry, material, polish, FIXED_SECONDS, c.time_budget_s,
-                      (entry or {}).get("expected_f1"))
+                      (entry or {}).get("expected_f1"), phases=phases)
 
 
 def cycle_seconds(costs: StepCosts, pixels: float, faces: int, n_views: int, scale: int = 1) -> float:

@@ -11,7 +11,7 @@ class LockedEmitter:
 
     def __init__(self, emit):
         self.inner = emit
-        self.lock = threading.Lock()
+        self.lock = threading.RLock()  # re-entered when a progress event is re-sent through Progress
 
     def __call__(self, event: str, **fields) -> dict:
         with self.lock:
@@ -71,6 +71,12 @@ class Progress:
         self.fields.update(fields)
         if force or time.perf_counter() - self.last >= self.min_gap:
             self._send()
+
+    def restart(self, **fields) -> None:
+        """Fields of another kind of work (a material stage's): they replace the last ones but
+        the level, and go out at once."""
+        self.fields = {k: v for k, v in self.fields.items() if k == "level"}
+        self.update(force=True, **fields)
 
     def _send(self) -> None:
         if not self.fields:

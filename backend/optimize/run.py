@@ -34,6 +34,7 @@ from .config import ReconstructConfig
 from .levels import LevelRun, PolishRun
 from .objective import Objective
 from .progress import LockedEmitter, Progress, StopOnProgress
+from .remaining import Paced, Remaining
 from .records import LevelRecord, RunState
 from .run_folder import RunFolder, StopRequested
 from .schedule import keeps_improving, level_size
@@ -72,8 +73,8 @@ def reconstruct(capture: Capture, out: RunFolder, config: ReconstructConfig, eve
             wrap the real one to record every step).
         planner: called as ``planner(capture, viewset, geometry_settings, material_settings,
             initial_mesh, held)`` once a new run has decided its effects, before its first step (the
-            command times this capture's steps there: optimize/plan.py); its time is not
-            charged to the budget.
+            command times this capture's steps there: optimize/plan.py), uncharged; the
+            PresetPlan it returns paces the progress events' time left (optimize/remaining.py).
     Raises InputError on bad input; cancellation returns exit code 130."""
     run = Reconstruction(capture, out, config, events, material=material, resume=resume,
                          objective_factory=objective_factory, planner=planner)
@@ -105,7 +106,8 @@ class Reconstruction:
         self.capture, self.folder, self.config = capture, folder, config
         self.state = RunState()
         self.accuracy = accuracy.AccuracyTracker(held, config)
-        emit = self.accuracy.observe(StopOnProgress(emit, folder.check_stop, lambda: self.state.phase != "done"))
+        emit = self.accuracy.observe(StopOnProgress(Paced(emit, self), folder.check_stop,
+                                                    lambda: self.state.phase != "done"))
         self.emit = LockedEmitter(emit)
         if held.note:
             self.emit("warning", message=held.note)
@@ -159,9 +161,10 @@ class Reconstruction:
         s.timed("init", start)
         if self.planner is not None:
             with self.budget.uncharged():
-                self.planner(self.capture, self.viewset, self.settings(),
-                             self.appearance.material_settings(RenderSettings.for_geometry(c)), s.mesh,
-                             self.accuracy.held)
+                planned = self.planner(self.capture, self.viewset, self.settings(),
+                                       self.appearance.material_settings(RenderSettings.for_geometry(c)), s.mesh,
+                                       self.accuracy.held)
+            self.budget.remaining = None if planned is None else Remaining.from_plan(planned, c.time_budget_s)
         report = inspect(s.mesh)
         s.init = {"kind": kind, "faces": s.mesh.n_faces, "genus": report.genus,
                   "seconds": round(time.perf_counter() - start, 3)}
