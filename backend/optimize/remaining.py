@@ -30,7 +30,9 @@ the clock's time), so ``bench plan --replan`` replays finished runs through the 
 
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass, field
+from pathlib import Path
 
 END_S = 4.0  # the last check and the outputs after the last phase
 
@@ -129,7 +131,9 @@ class Remaining:
             self.ended = True
             return
         if stage == "geometry":
-            self.index = self._next("level")
+            levels = [i for i, p in enumerate(self.phases) if p.kind == "level"]
+            level = fields.get("level")  # a resumed run starts its level again: found by number
+            self.index = self._next("level") if level is None or not levels else levels[min(int(level), len(levels) - 1)]
             p = self.phases[self.index]
             self.current = _Current("level", now, p.units, p.unit_s, p.cap, at=now, stage=stage)
         elif stage == "polish":
@@ -200,6 +204,30 @@ class Remaining:
         if self.budget_s:
             left = min(left, max(self.budget_s - now, 0.0) + END_S)
         return left
+
+
+def resumed(events_path, budget_s: float | None = None) -> Remaining | None:
+    """The time left of a resumed run: the plan of the process that began it (its last
+    ``preset`` event with phases in ``events_path``), with every event since replayed, so that
+    the phases done and their pace carry over; None without such a plan."""
+    events = []
+    try:
+        lines = Path(events_path).read_text().splitlines()
+    except OSError:
+        return None
+    for line in lines:
+        try:
+            events.append(json.loads(line))
+        except ValueError:  # a line a crash cut short
+            continue
+    planned = [i for i, e in enumerate(events) if e.get("event") == "preset" and (e.get("plan") or {}).get("phases")]
+    if not planned:
+        return None
+    remaining = Remaining.from_plan(events[planned[-1]]["plan"], budget_s)
+    for e in events[planned[-1]:]:
+        remaining.observe(str(e.get("event")), e, float(e.get("time") or 0.0))
+    remaining.current, remaining.ended = None, False  # the phase it was in starts again
+    return remaining
 
 
 class Paced:

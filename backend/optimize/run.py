@@ -34,7 +34,7 @@ from .config import ReconstructConfig
 from .levels import LevelRun, PolishRun
 from .objective import Objective
 from .progress import LockedEmitter, Progress, StopOnProgress
-from .remaining import Paced, Remaining
+from .remaining import Paced, Remaining, resumed
 from .records import LevelRecord, RunState
 from .run_folder import RunFolder, StopRequested
 from .schedule import keeps_improving, level_size
@@ -180,6 +180,7 @@ class Reconstruction:
         self.accuracy.restore(s.accuracy)
         self.material = self.appearance.load_material(material_path, self.folder.path)
         s.material_kind = self.material.KIND
+        self.budget.remaining = resumed(self.folder.events, self.config.time_budget_s)  # its plan, phases done
         self.emit("stage", stage="resume", level=s.level, faces=s.mesh.n_faces)
         coarse = self.viewset.at(self.config.coarse_size)
         self.appearance.restore(s.appearance, coarse)

@@ -148,3 +148,24 @@ def test_a_staged_runs_progress_counts_down_through_the_material_stages(tmp_path
     # the time left after the last level's start, against the time the run really took
     e = after[0]
     assert abs(e["time"] + e["eta_s"] - end) < 0.6 * end, (e, end)
+
+
+def test_a_resumed_run_carries_the_phases_done_and_their_pace(tmp_path):
+    """--resume: the plan of the process that began the run, its events replayed (a line cut
+    short by the crash skipped); the level it was in starts again, found by its number."""
+    from backend.optimize.remaining import resumed
+
+    events, _ = simulate(PHASES, step_scale=2.0)
+    cut = next(i for i, (t, e, f) in enumerate(events) if e == "progress" and f["stage"] == "geometry"
+               and f["iteration"] == 50 and t > 20)  # halfway through level 1
+    lines = [json.dumps({"event": "preset", "time": 0.0, "plan": {"phases": [p.to_json() for p in PHASES]}})]
+    lines += [json.dumps({"event": e, "time": t, **f}) for t, e, f in events[:cut]]
+    path = tmp_path / "events.jsonl"
+    path.write_text("\n".join(lines) + '\n{"event": "progr')
+    remaining = resumed(path)
+    assert remaining.index == 2 and remaining.current is None and remaining.pace["step"] == pytest.approx(2.0)
+    remaining.observe("stage", {"stage": "geometry", "level": 1}, 100.0)  # level 1 again
+    assert remaining.index == 2
+    later = 2.0 * 2 * 150 * 0.25 + 40 * 0.06 + 2 * 160 * 0.07 + 2 * 160 * 0.07
+    assert remaining.seconds(100.0) == pytest.approx(2.0 * 100 * 0.2 + later + END_S)
+    assert resumed(tmp_path / "missing.jsonl") is None
