@@ -146,6 +146,8 @@ class Remaining:
                 return
             here = self.phases[self.index]
             if here.kind == "level":  # the level's own cycle
+                if self.index + 1 >= len(self.phases) or self.phases[self.index + 1].kind != "cycle":
+                    return  # one the plan has not
                 self.index += 1
                 p = self.phases[self.index]
                 units, unit_s = p.units, p.unit_s
@@ -247,7 +249,11 @@ class Paced:
             return fields
         budget = getattr(self.run, "budget", None)
         if budget is not None and budget.remaining is not None:
-            budget.remaining.observe(event, fields, budget.elapsed())
+            try:
+                budget.remaining.observe(event, fields, budget.elapsed())
+            except Exception as err:  # an estimate that fails must not stop the run it estimates
+                budget.remaining = None
+                self.inner("warning", message=f"no estimate of the time left from here on ({type(err).__name__}: {err})")
         return self.inner(event, **fields)
 
     @property

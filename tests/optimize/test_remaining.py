@@ -169,3 +169,15 @@ def test_a_resumed_run_carries_the_phases_done_and_their_pace(tmp_path):
     later = 2.0 * 2 * 150 * 0.25 + 40 * 0.06 + 2 * 160 * 0.07 + 2 * 160 * 0.07
     assert remaining.seconds(100.0) == pytest.approx(2.0 * 100 * 0.2 + later + END_S)
     assert resumed(tmp_path / "missing.jsonl") is None
+
+
+def test_stages_the_plan_has_not_leave_the_estimate_standing():
+    """A constant-material plan has levels only; material stages, polish or a final cycle it
+    did not plan for must not break the estimate."""
+    remaining = Remaining([Phase("level", 100, 0.1, cap=120), Phase("level", 100, 0.2, cap=120)])
+    for t, stage in enumerate(("geometry", "material:constant", "remesh", "geometry", "material:diffuse", "polish",
+                               "material:specular")):
+        remaining.observe("stage", {"stage": stage}, float(t))
+        assert remaining.seconds(float(t)) >= END_S
+    remaining.observe("stage", {"stage": "material:check"}, 9.0)
+    assert remaining.seconds(9.0) == END_S
