@@ -34,6 +34,7 @@ class RunState:
     done: dict = field(default_factory=dict)  # the `done` event
     accuracy: list = field(default_factory=list)  # (seconds, held-out PSNR) of the `accuracy` events
     predicted: str = ""  # the held-out PSNR the `preset` event predicted, e.g. '24 ± 3 dB'
+    planned_s: float | None = None  # the run's time the `preset` event promised (its plan)
     started: float = field(default_factory=time.monotonic)
     _eta_s: float | None = None
     _eta_at: float = 0.0
@@ -75,10 +76,13 @@ class RunState:
             note = (" (given)" if "given" in reason else
                     " (textured, one constant material)" if "constant material" in reason else "")
             self.smoothing = f"λ {float(event.get('lambda') or 0):g}{note}"
-        elif kind == "preset" and event.get("predicted_psnr") is not None:
-            spread = event.get("psnr_spread")
-            self.predicted = f"{float(event['predicted_psnr']):.0f}" + (
-                "" if spread is None else f" \u00b1 {float(spread):.0f}") + " dB"
+        elif kind == "preset":
+            if event.get("predicted_minutes") is not None:
+                self.planned_s = 60.0 * float(event["predicted_minutes"])
+            if event.get("predicted_psnr") is not None:
+                spread = event.get("psnr_spread")
+                self.predicted = f"{float(event['predicted_psnr']):.0f}" + (
+                    "" if spread is None else f" \u00b1 {float(spread):.0f}") + " dB"
         elif kind == "lighting":
             self.lighting = lighting_summary(event)
         elif kind == "accuracy":
@@ -155,6 +159,13 @@ class RunState:
 
     def eta_text(self, now: float | None = None) -> str:
         return "ETA --" if (eta := self.eta(now)) is None else f"ETA {format_duration(eta)}"
+
+    def plan_text(self, now: float | None = None) -> str:
+        """The promise against the run as it goes, e.g. 'Planned 3m 00s; now 3m 40s in all', or ''."""
+        eta = self.eta(now)
+        if self.planned_s is None or eta is None:
+            return ""
+        return f"Planned {format_duration(self.planned_s)}; now {format_duration(self.elapsed(now) + eta)} in all"
 
     def headline(self) -> str:
         """One line for the panel: stage, iteration and loss."""

@@ -25,6 +25,8 @@ def _draw_job(layout, job: jobs.Job | None, cancel: str | None = None) -> bool:
     if state.active:
         col.progress(factor=state.fraction, type="BAR", text=f"{state.fraction:.0%}  {state.eta_text()}")
         col.label(text=state.headline())
+        if state.plan_text():
+            col.label(text=state.plan_text(), icon="TIME")
         if state.effects:
             col.label(text=f"Simulating: {state.effects}", icon="LIGHT")
             if state.shadow_samples:

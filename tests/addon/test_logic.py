@@ -197,6 +197,12 @@ def test_run_state_follows_events():
     assert state.eta(time.monotonic()) == pytest.approx(30.0, abs=0.5)
     assert state.headline() == "geometry (level 1)  it 10/40  loss 0.0123"
     assert state.eta_text(state._eta_at + 12.0) == "ETA 18s"  # the estimate ages
+    assert state.plan_text() == ""  # no plan yet
+    state.update({"event": "preset", "preset": "draft", "predicted_minutes": 3.0, "predicted_psnr": 24.2,
+                  "psnr_spread": 2.6})
+    now = state._eta_at + 12.0
+    assert state.predicted == "24 \u00b1 3 dB"
+    assert state.plan_text(now) == f"Planned 3m 00s; now {progress.format_duration(state.elapsed(now) + 18.0)} in all"
     state.update({"event": "snapshot", "path": "snapshots/000010.ply", "iteration": 10, "faces": 500, "loss": 0.01})
     assert state.snapshot == "snapshots/000010.ply" and state.snapshots == 1
     state.update({"event": "done", "result": "result.ply", "report": "report.json", "metrics": {"f1": 0.9}})

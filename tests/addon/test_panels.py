@@ -120,6 +120,9 @@ def test_reconstruct_panel_shows_progress_and_cancel(context, addon, tmp_path):
                           "frame": "world", "resolution": [16, 8]})
         assert ("label", "Lighting: estimated map 16x8, fitting again on the final surface") in draw(
             "SFT_PT_reconstruct", context)
+        # the plan's promise beside the run's own estimate (the protocol's preset event)
+        job.state.update({"event": "preset", "preset": "draft", "predicted_minutes": 2.5})
+        assert any(e[0] == "label" and e[1].startswith("Planned 2m 30s; now ") for e in draw("SFT_PT_reconstruct", context))
         assert bpy.ops.sft.reconstruct_cancel() == {"FINISHED"}
         assert any(e == ("label", "Stopping after the current step...") for e in draw("SFT_PT_reconstruct", context))
         job.run_blocking(context, interval=0.02)
