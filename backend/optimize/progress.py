@@ -76,7 +76,7 @@ class Progress:
         """Fields of another kind of work (a material stage's): they replace the last ones but
         the level, and go out at once."""
         self.fields = {k: v for k, v in self.fields.items() if k == "level"}
-        self.update(force=True, **fields)
+        self.update(force=True, **{k: v for k, v in fields.items() if k not in ("seconds", "fraction", "eta_s")})
 
     def _send(self) -> None:
         if not self.fields:
