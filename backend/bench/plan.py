@@ -41,7 +41,7 @@ from pathlib import Path
 from .. import fsio
 from ..errors import InputError, require
 from ..events import Emitter
-from ..optimize.forecast import GAINS_FILE
+from ..optimize.forecast import GAINS_FILE, fit_line
 from ._data import SHARED_DATA
 from ._machine import code_version, machine
 from ._replan import CHECKPOINTS, live_errors
@@ -209,7 +209,7 @@ def add_arguments(parser) -> None:
     parser.add_argument("--replan", action="store_true",
                         help="run nothing: predict the time and held-out PSNR of OUT's finished runs again with the "
                              "current cost model and gains, from their recorded step costs and probes, into "
-                             "OUT/replan.json")
+                             "OUT/replan.json (with --calibrate: also write the gains again from OUT's runs)")
 
 
 def run(args) -> int:
@@ -254,7 +254,8 @@ def write_gain(path: Path, preset: str, rows: list[dict], doc: dict) -> None:
         named = [r for r in rows if r.get("lighting_kind") == kind and r.get("gain_db") is not None]
         kind_median, kind_spread = _median_spread([r["gain_db"] for r in named])
         kinds[kind] = {"gain_db": kind_median, "spread_db": kind_spread, "captures": [r["capture"] for r in named]}
-    presets[preset] = {"gain_db": median, "spread_db": spread, "kinds": kinds,
+    line = fit_line([(r["probe_psnr"], r["gain_db"]) for r in rows if r.get("gain_db") is not None])
+    presets[preset] = {"gain_db": median, "spread_db": spread, "line": line, "kinds": kinds,
                        "captures": {r["capture"]: {k: r.get(k) for k in ("lighting_kind", "probe_psnr", "psnr", "gain_db")}
                                     for r in rows},
                        "code": doc["code"], "measured": doc["measured"], "machine": doc["machine"]}
@@ -262,7 +263,8 @@ def write_gain(path: Path, preset: str, rows: list[dict], doc: dict) -> None:
                                     "(optimize/forecast.py); python -m backend bench plan --calibrate --preset P",
                            "presets": presets})
     per_kind = ", ".join(f"{k} {v['gain_db']:+.2f} dB over {len(v['captures'])}" for k, v in kinds.items())
-    print(f"{preset}: gain {median:+.2f} dB over {len(gains)} captures ({per_kind}) -> {path}", flush=True)
+    fitted = "" if line is None else f"; line {line['intercept']:+.2f} + {line['slope']:.3f} x probe dB"
+    print(f"{preset}: gain {median:+.2f} dB over {len(gains)} captures ({per_kind}){fitted} -> {path}", flush=True)
 
 
 def _median_spread(gains: list[float]) -> tuple[float, float]:
@@ -282,5 +284,7 @@ def _replan(args, emit) -> int:
                                                                            "measured": time.strftime("%Y-%m-%dT%H:%M:%S")}}
     fsio.write_json(args.out / "replan.json", fresh)
     print(table(rows), flush=True)
+    if args.calibrate:  # the gains again from the recorded calibration runs (their code and date kept)
+        write_gain(args.gains_file, doc["preset"], doc["rows"], doc)
     emit("done", result=str(args.out / "replan.json"), **fresh["summary"])
     return 0

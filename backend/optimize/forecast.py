@@ -9,16 +9,19 @@ the prediction starts from a measurement on the capture itself:
                        cycles fitted (the constant stage, then one diffuse cycle, at the
                        coarse size, under the run's lighting: captured, or estimated / flash
                        fitted with it as the run fits it)
-    predicted(preset) = probe + gain(preset)
+    predicted(preset) = probe + gain(preset, probe)
+    gain(preset, probe) = a + b * clamp(probe, lowest, highest calibration probe)
 
 ``probe`` measures what the capture's appearance allows on the starting shape; ``gain`` is
-what the preset's geometry levels, finer textures and specular stage add on top of that,
-calibrated as the median over captures that are not used to test the prediction
-(``GAINS_FILE``, with the largest distance from that median as the prediction's spread;
-``bench plan`` compares predicted and measured on ten others). One median serves every kind
-of lighting: a median per kind (an environment map, or lights fixed to the cameras) is
-recorded in the file but did worse on the held-out captures (docs/results.md, "Predicted
-time"). Held-out views are those ``--track-accuracy`` scores (``accuracy.split``: the
+what the preset's geometry levels, finer textures and specular stage add on top of that. It
+grows with the probe: a smooth shape starts close to its hull and its probe scores high, and
+the levels then gain it more (5-6.5 dB) than they gain a detailed one (about 3 dB), whatever
+the light. ``a`` and ``b`` are fitted by least squares over captures that are not used to
+test the prediction (``GAINS_FILE``, with the largest residual as the prediction's spread;
+``bench plan`` compares predicted and measured on ten others). Without a line the gain is
+their median. A median per kind of lighting (an environment map, or lights fixed to the
+cameras) is recorded in the file but did worse on the held-out captures (docs/results.md,
+"Predicted time"). Held-out views are those ``--track-accuracy`` scores (``accuracy.split``: the
 capture's ground-truth held-out views, else every ``held_out_every``-th view, left out of the
 probe's fit), rendered as the tracker renders them, so that the prediction and the run's
 ``accuracy_time`` measure the same thing. The probe runs on copies: the run's material, lighting and capture are not touched."""
@@ -30,6 +33,8 @@ import json
 import tempfile
 import time
 from pathlib import Path
+
+import numpy as np
 
 SPREAD_FLOOR_DB = 1.0  # a run's held-out PSNR moves by up to about this much run to run: no narrower promise
 PROBE_CYCLES = 8  # most material cycles the probe runs (the constant stage ends sooner: MaterialSchedule)
@@ -93,19 +98,39 @@ def load_gains(path: Path = GAINS_FILE) -> dict:
     return {k: v for k, v in (presets or {}).items() if isinstance(v, dict) and isinstance(v.get("gain_db"), (int, float))}
 
 
-def gain(gains: dict, preset: str) -> tuple[float, float | None] | None:
-    """(gain, spread) in dB of ``preset``, the spread at least ``SPREAD_FLOOR_DB``; None when the
-    preset has no calibrated gain."""
+def fit_line(pairs: list[tuple[float, float]]) -> dict | None:
+    """The gain as a line in the probe's PSNR, by least squares over (probe, gain) pairs:
+    {"intercept", "slope", "probe_range" (the probes it was fitted over), "spread_db" (its
+    largest residual)}; None with fewer than three pairs or probes that do not differ."""
+    if len(pairs) < 3 or len({round(p, 6) for p, _ in pairs}) < 2:
+        return None
+    probes, gains = (np.array(x, np.float64) for x in zip(*pairs))
+    slope, intercept = np.polyfit(probes, gains, 1)
+    residual = gains - (intercept + slope * probes)
+    return {"intercept": round(float(intercept), 3), "slope": round(float(slope), 4),
+            "probe_range": [round(float(probes.min()), 2), round(float(probes.max()), 2)],
+            "spread_db": round(float(np.abs(residual).max()), 2)}
+
+
+def gain(gains: dict, preset: str, probe_psnr: float | None = None) -> tuple[float, float | None] | None:
+    """(gain, spread) in dB of ``preset`` on a capture whose probe scored ``probe_psnr``: the
+    calibrated line at that probe (held within the probes it was fitted over), else the median
+    gain; the spread at least ``SPREAD_FLOOR_DB``. None when the preset has no calibrated gain."""
     entry = gains.get(preset)
     if not entry:
         return None
+    line = entry.get("line")
+    if line and probe_psnr is not None:
+        lo, hi = line["probe_range"]
+        value = line["intercept"] + line["slope"] * min(max(float(probe_psnr), lo), hi)
+        return float(value), max(float(line["spread_db"]), SPREAD_FLOOR_DB)
     spread = entry.get("spread_db")
     return float(entry["gain_db"]), None if spread is None else max(float(spread), SPREAD_FLOOR_DB)
 
 
 def predicted_psnr(probed: dict | None, preset: str, gains: dict | None = None) -> float | None:
-    """The held-out PSNR ``preset`` is expected to reach: the probe's plus the preset's gain
-    (None without a probe or a calibrated gain)."""
+    """The held-out PSNR ``preset`` is expected to reach: the probe's plus the preset's gain at
+    that probe (None without a probe or a calibrated gain)."""
     gains = load_gains() if gains is None else gains
-    found = None if probed is None else gain(gains, preset)
+    found = None if probed is None else gain(gains, preset, probed["psnr"])
     return None if found is None else round(probed["psnr"] + found[0], 2)
