@@ -110,7 +110,7 @@ class PresetPlan:
     budget_s: float | None = None
     expected_f1: float | None = None  # on the calibration scene
     predicted_psnr: float | None = None  # held-out, from this capture's probe (optimize/forecast.py)
-    psnr_spread: float | None = None  # the calibration captures' largest distance from their median gain
+    psnr_spread: float | None = None  # the calibration captures' largest distance from their gain (forecast.gain)
     phases: list[Phase] = dataclasses.field(default_factory=list)  # in order, for optimize/remaining.py
 
     @property
