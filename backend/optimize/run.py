@@ -21,10 +21,10 @@ import numpy as np
 from .. import fsio
 from ..capture.model import Capture
 from ..errors import InputError
-from ..geometry.init import initial_mesh
+from ..geometry.init import check_lights_outside, initial_mesh
 from ..geometry.mesh import Mesh, load_mesh, save_mesh
 from ..geometry.simplify import FaceBudget
-from ..geometry.topology import enclosed, inspect
+from ..geometry.topology import inspect
 from ..metrics import geometry_metrics
 from ..render.scene import RenderSettings
 from . import accuracy
@@ -386,19 +386,3 @@ def snapshot_interval(config: ReconstructConfig, snapshot_seconds: float) -> flo
     takes at most ``snapshot_share`` of the run."""
     c = config
     return max(c.snapshot_every_s, snapshot_seconds / c.snapshot_share if c.snapshot_share > 0 else 0.0)
-
-
-def check_lights_outside(capture: Capture, mesh: Mesh, kind: str) -> None:
-    """A point light inside the starting surface leaves every render black and every
-    gradient zero: such a run would learn nothing and must not end "done"."""
-    lights = {tuple(np.round(light.position, 9)) for f in capture.frames for light in f.lights}
-    if not lights:
-        return
-    positions = np.array(sorted(lights))
-    inside = enclosed(mesh, positions)
-    if inside.any():
-        p = positions[np.argmax(inside)]
-        raise InputError(capture.root, f"the initial mesh ({kind}) encloses the point light at "
-                         f"({p[0]:.3g}, {p[1]:.3g}, {p[2]:.3g}): every render would be black",
-                         "start from a mesh that leaves the lights outside (--init sphere or a mesh file), "
-                         "or give masks that do not cover the lamp")

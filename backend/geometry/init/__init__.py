@@ -5,9 +5,12 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
+
 from ...capture.model import Capture
 from ...errors import InputError
 from ..mesh import Mesh
+from ..topology import enclosed
 from .carve import carve
 from .points_poisson import points_mesh
 from .sphere import box_mesh, sphere_mesh
@@ -45,3 +48,19 @@ def initial_mesh(capture: Capture, kind: str | None, faces: int, warn=lambda mes
                              "give one of those names or an existing OBJ/PLY file")
         return user_mesh(path, cameras, faces, warn), str(path)
     return check_initial_mesh(mesh, kind, cameras, warn), kind
+
+
+def check_lights_outside(capture: Capture, mesh: Mesh, kind: str) -> None:
+    """A point light inside the starting surface leaves every render black and every
+    gradient zero: such a run would learn nothing and must not end "done"."""
+    lights = {tuple(np.round(light.position, 9)) for f in capture.frames for light in f.lights}
+    if not lights:
+        return
+    positions = np.array(sorted(lights))
+    inside = enclosed(mesh, positions)
+    if inside.any():
+        p = positions[np.argmax(inside)]
+        raise InputError(capture.root, f"the initial mesh ({kind}) encloses the point light at "
+                         f"({p[0]:.3g}, {p[1]:.3g}, {p[2]:.3g}): every render would be black",
+                         "start from a mesh that leaves the lights outside (--init sphere or a mesh file), "
+                         "or give masks that do not cover the lamp")
