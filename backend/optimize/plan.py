@@ -163,8 +163,8 @@ def predict(name: str, config, costs: StepCosts, pixels_at, n_views: int, staged
     polish = 0.0
     if staged and plan and c.lighting in ("estimate", "rig", "flash"):  # the lighting first, on the initial mesh
         material += c.light_first_cycles * cycle_seconds(costs, pixels_at(plan[0].size), plan[0].faces, n_views)
-    capped = c.iterations is not None and sum(lv.steps for lv in plan) >= c.iterations
-    if staged and plan and not capped:  # an iteration cap ends a run with its levels' cycles
+    cap_ends = c.iterations is not None and sum(lv.steps for lv in plan) >= c.iterations
+    if staged and plan and not cap_ends:  # an iteration cap ends a run with its levels' cycles
         last = plan[-1]
         p = pixels_at(c.max_size)
         long_cycle = cycle_seconds(costs, p, last.faces, n_views, scale=4)
