@@ -68,6 +68,13 @@ CAPTURES = {
     "teacup_env48": ["--mesh", MESHES / "shapefromtracing" / "teacup.obj", "--up", "y", "--views", 8,
                      "--resolution", 48, "--lighting", "env", "--env", ENVMAPS / "forest_slope_1k.hdr"],
     "arma48": ["--mesh", MESHES / "stanford" / "armadillo_86k.obj", "--up", "y", "--views", 12, "--resolution", 48],
+    # three more, added on 2026-11-29 after the gain's line was fitted: they test it unseen
+    "blub_env48": ["--mesh", MESHES / "crane" / "blub" / "blub_triangulated.obj", "--up", "y", "--views", 10,
+                   "--resolution", 48, "--lighting", "env", "--env", ENVMAPS / "venice_sunset_1k.hdr"],
+    "bob48": ["--mesh", MESHES / "crane" / "bob" / "bob_tri.obj", "--up", "y", "--views", 10, "--resolution", 48,
+              "--albedo", "pattern"],
+    "sbunny_flash48": ["--mesh", MESHES / "stanford" / "bunny_watertight.obj", "--up", "y", "--views", 12,
+                       "--resolution", 48, "--lighting", "flash"],
 }
 # the smoke test's capture (not among the default ones): the blob, 6 views at 24 px
 SMOKE = {"tiny": ["--views", 6, "--resolution", 24, "--spp", 8, "--held-out", 0]}
