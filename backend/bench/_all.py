@@ -91,7 +91,7 @@ JOBS = (
         (("bench", "sweep", "--grid", "quick", "--out", "{out}", "--report", "{report}"),)),
     Job("calibrate", "Accuracy versus time: the sweep and the presets", 1.5,
         (("bench", "calibrate", "--scenes", "dragon,blob_env", "--out", "{out}/presets.json", "--work", "{out}/work"),)),
-    Job("plan", "Predicted time: a cost model per capture (issue #23)", 1.3, (
+    Job("plan", "Predicted time: a cost model per capture (issue #23)", 1.5, (
         ("bench", "plan", "--calibrate", "--preset", "draft", "--out", "{out}/calibrate",
          "--gains-file", "{out}/forecast.json"),
         ("bench", "plan", "--preset", "draft", "--out", "{out}/test"))),
