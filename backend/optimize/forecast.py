@@ -9,19 +9,16 @@ the prediction starts from a measurement on the capture itself:
                        cycles fitted (the constant stage, then one diffuse cycle, at the
                        coarse size, under the run's lighting: captured, or estimated / flash
                        fitted with it as the run fits it)
-    predicted(preset) = probe + gain(preset, probe)
-    gain(preset, probe) = a + b * clamp(probe, lowest, highest calibration probe)
+    predicted(preset) = probe + gain(preset)
 
 ``probe`` measures what the capture's appearance allows on the starting shape; ``gain`` is
-what the preset's geometry levels, finer textures and specular stage add on top of that. It
-grows with the probe: a smooth shape starts close to its hull and its probe scores high, and
-the levels then gain it more (5-6.5 dB) than they gain a detailed one (about 3 dB), whatever
-the light. ``a`` and ``b`` are fitted by least squares over captures that are not used to
-test the prediction (``GAINS_FILE``, with the largest residual as the prediction's spread;
-``bench plan`` compares predicted and measured on ten others). Without a line the gain is
-their median. A median per kind of lighting (an environment map, or lights fixed to the
-cameras) is recorded in the file but did worse on the held-out captures (docs/results.md,
-"Predicted time"). Held-out views are those ``--track-accuracy`` scores (``accuracy.split``: the
+what the preset's geometry levels, finer textures and specular stage add on top of that,
+calibrated as the median over captures that are not used to test the prediction
+(``GAINS_FILE``, with the largest distance from that median as the prediction's spread;
+``bench plan`` compares predicted and measured on others). Two refinements are recorded in
+the file and not used, because each did worse on held-out captures it had not seen
+(docs/results.md, "Predicted time"): a median per kind of lighting (an environment map, or
+lights fixed to the cameras), and a line in the probe's PSNR (``fit_line``). Held-out views are those ``--track-accuracy`` scores (``accuracy.split``: the
 capture's ground-truth held-out views, else every ``held_out_every``-th view, left out of the
 probe's fit), rendered as the tracker renders them, so that the prediction and the run's
 ``accuracy_time`` measure the same thing. The probe runs on copies: the run's material, lighting and capture are not touched."""
@@ -112,25 +109,20 @@ def fit_line(pairs: list[tuple[float, float]]) -> dict | None:
             "spread_db": round(float(np.abs(residual).max()), 2)}
 
 
-def gain(gains: dict, preset: str, probe_psnr: float | None = None) -> tuple[float, float | None] | None:
-    """(gain, spread) in dB of ``preset`` on a capture whose probe scored ``probe_psnr``: the
-    calibrated line at that probe (held within the probes it was fitted over), else the median
-    gain; the spread at least ``SPREAD_FLOOR_DB``. None when the preset has no calibrated gain."""
+def gain(gains: dict, preset: str) -> tuple[float, float | None] | None:
+    """(gain, spread) in dB of ``preset``: the median gain, the spread at least
+    ``SPREAD_FLOOR_DB``; None when the preset has no calibrated gain. The file's ``line`` and
+    ``kinds`` are records, not used (see the module docstring)."""
     entry = gains.get(preset)
     if not entry:
         return None
-    line = entry.get("line")
-    if line and probe_psnr is not None:
-        lo, hi = line["probe_range"]
-        value = line["intercept"] + line["slope"] * min(max(float(probe_psnr), lo), hi)
-        return float(value), max(float(line["spread_db"]), SPREAD_FLOOR_DB)
     spread = entry.get("spread_db")
     return float(entry["gain_db"]), None if spread is None else max(float(spread), SPREAD_FLOOR_DB)
 
 
 def predicted_psnr(probed: dict | None, preset: str, gains: dict | None = None) -> float | None:
-    """The held-out PSNR ``preset`` is expected to reach: the probe's plus the preset's gain at
-    that probe (None without a probe or a calibrated gain)."""
+    """The held-out PSNR ``preset`` is expected to reach: the probe's plus the preset's gain
+    (None without a probe or a calibrated gain)."""
     gains = load_gains() if gains is None else gains
-    found = None if probed is None else gain(gains, preset, probed["psnr"])
+    found = None if probed is None else gain(gains, preset)
     return None if found is None else round(probed["psnr"] + found[0], 2)

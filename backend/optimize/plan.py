@@ -110,7 +110,7 @@ class PresetPlan:
     budget_s: float | None = None
     expected_f1: float | None = None  # on the calibration scene
     predicted_psnr: float | None = None  # held-out, from this capture's probe (optimize/forecast.py)
-    psnr_spread: float | None = None  # the calibration captures' largest distance from their gain (forecast.gain)
+    psnr_spread: float | None = None  # the calibration captures' largest distance from their median gain
     phases: list[Phase] = dataclasses.field(default_factory=list)  # in order, for optimize/remaining.py
 
     @property
@@ -262,7 +262,7 @@ def make_plan(capture, configs: dict, settings, staged: bool, calibration: dict 
     gains = load_gains()
     for name, p in presets.items():
         p.predicted_psnr = predicted_psnr(probe, name, gains)
-        p.psnr_spread = None if p.predicted_psnr is None else gain(gains, name, probe["psnr"])[1]
+        p.psnr_spread = None if p.predicted_psnr is None else gain(gains, name)[1]
         p.fixed_s += (probe or {}).get("seconds", 0.0)  # a run probes again before its first step
     return Plan(costs, presets, dataclasses.asdict(settings), probe)
 

@@ -68,20 +68,15 @@ def test_one_median_serves_every_kind_of_lighting_and_the_spread_has_a_floor(tmp
     assert forecast.gain(gains, "final") is None
 
 
-def test_the_gain_follows_the_calibrated_line_in_the_probes_psnr(tmp_path):
-    """A capture whose probe scores higher gains more (smooth shapes start closer and end
-    higher); outside the probes the line was fitted over it is held at their ends."""
+def test_the_line_in_the_probe_is_recorded_not_used(tmp_path):
+    """The calibration records a line of the gain in the probe's PSNR; it predicted worse on
+    captures it had not seen, so the median predicts."""
     path = tmp_path / "forecast.json"
     line = {"intercept": -4.0, "slope": 0.4, "probe_range": [16.0, 28.0], "spread_db": 1.5}
     path.write_text(json.dumps({"presets": {"draft": {"gain_db": 3.0, "spread_db": 3.4, "line": line}}}))
     gains = forecast.load_gains(path)
-    assert forecast.gain(gains, "draft", 20.0) == pytest.approx((4.0, 1.5))
-    assert forecast.predicted_psnr({"psnr": 25.0}, "draft", gains) == pytest.approx(31.0)
-    assert forecast.gain(gains, "draft", 10.0)[0] == pytest.approx(-4.0 + 0.4 * 16.0)  # held at the lowest probe
-    assert forecast.gain(gains, "draft", 40.0)[0] == pytest.approx(-4.0 + 0.4 * 28.0)
-    assert forecast.gain(gains, "draft") == (3.0, 3.4)  # no probe: the median
-    narrow = {"draft": {"gain_db": 3.0, "line": {**line, "spread_db": 0.2}}}
-    assert forecast.gain(narrow, "draft", 20.0)[1] == forecast.SPREAD_FLOOR_DB
+    assert forecast.gain(gains, "draft") == (3.0, 3.4)
+    assert forecast.predicted_psnr({"psnr": 25.0}, "draft", gains) == 28.0
     assert forecast.fit_line([(20.0, 3.0), (20.0, 4.0), (20.0, 5.0)]) is None  # one probe: no slope
     assert forecast.fit_line([(18.0, 2.0), (22.0, 4.0)]) is None  # too few
 
@@ -106,7 +101,7 @@ def test_calibration_writes_the_median_gain_and_records_each_kind_of_lightings(t
     # the line through (20, 4.67 mean) and (18, 2.75 mean): slope 0.96, largest residual 1.67
     assert entry["line"]["slope"] == pytest.approx(0.9583, abs=1e-3)
     assert entry["line"]["probe_range"] == [18.0, 20.0] and entry["line"]["spread_db"] == pytest.approx(1.67)
-    assert forecast.predicted_psnr({"psnr": 20.0}, "draft", forecast.load_gains(path)) == pytest.approx(24.67, abs=0.01)
+
 
 
 def test_the_shipped_gains_name_their_captures_and_code():
@@ -127,7 +122,6 @@ def test_the_shipped_gains_name_their_captures_and_code():
             own = [entry["captures"][name]["gain_db"] for name in sub["captures"]]
             assert all(entry["captures"][name]["lighting_kind"] == kind for name in sub["captures"])
             assert min(own) <= sub["gain_db"] <= max(own)
-    assert gains["draft"].get("line"), "the default preset's gain follows the probe"
 
 
 def test_plan_and_preset_event_carry_the_predicted_psnr(tiny_capture, tmp_path):
@@ -142,7 +136,7 @@ def test_plan_and_preset_event_carry_the_predicted_psnr(tiny_capture, tmp_path):
         expected = forecast.predicted_psnr(event["probe"], name, gains)
         assert p["predicted_psnr"] == expected
         if expected is not None:  # "Draft ≈ 2.1 min (≈ 24 ± 3 dB)"
-            spread = forecast.gain(gains, name, event["probe"]["psnr"])[1]
+            spread = forecast.gain(gains, name)[1]
             assert f"\u2248 {expected:.0f} \u00b1 {spread:.0f} dB)" in event["line"]
             assert p["psnr_spread"] == spread
     run = tmp_path / "run"
