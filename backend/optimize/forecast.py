@@ -18,10 +18,13 @@ calibrated as the median over captures that are not used to test the prediction
 ``bench plan`` compares predicted and measured on others). Two refinements are recorded in
 the file and not used, because each did worse on held-out captures it had not seen
 (docs/results.md, "Predicted time"): a median per kind of lighting (an environment map, or
-lights fixed to the cameras), and a line in the probe's PSNR (``fit_line``). Held-out views are those ``--track-accuracy`` scores (``accuracy.split``: the
-capture's ground-truth held-out views, else every ``held_out_every``-th view, left out of the
-probe's fit), rendered as the tracker renders them, so that the prediction and the run's
-``accuracy_time`` measure the same thing. The probe runs on copies: the run's material, lighting and capture are not touched."""
+lights fixed to the cameras), and a line in the probe's PSNR (``fit_line``).
+
+Held-out views are those ``--track-accuracy`` scores (``accuracy.split``: the capture's
+ground-truth held-out views, else every ``held_out_every``-th view, left out of the probe's
+fit), rendered as the tracker renders them, so that the prediction and the run's
+``accuracy_time`` measure the same thing. The probe runs on copies: the run's material,
+lighting and capture are not touched."""
 
 from __future__ import annotations
 
