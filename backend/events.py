@@ -80,3 +80,19 @@ class Emitter:
 
 def null_emitter() -> Emitter:
     return Emitter(quiet=True)
+
+
+def read_log(path: str | Path) -> list[dict]:
+    """The events of a run's ``events.jsonl``, in order; a line a crash cut short is skipped,
+    and a missing or unreadable file gives []."""
+    try:
+        lines = Path(path).read_text().splitlines()
+    except OSError:
+        return []
+    events = []
+    for line in lines:
+        try:
+            events.append(json.loads(line))
+        except ValueError:
+            continue
+    return events

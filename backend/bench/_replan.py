@@ -39,33 +39,46 @@ def replan(run: Path, capture: Path) -> tuple[float, dict, dict]:
     predicted = plan.predict(preset["preset"], config, costs, plan.pixels_for(viewset), len(viewset),
                              config.material == "staged", entry)
     predicted.fixed_s += (preset.get("probe") or {}).get("seconds", 0.0)
-    return round(predicted.minutes, 2), *live_errors(events, predicted, config.time_budget_s)
+    return round(predicted.minutes, 2), live_errors(events, predicted, config.time_budget_s), said_errors(events)
 
 
-def live_errors(events: list[dict], predicted, budget_s: float | None = None) -> tuple[dict, dict]:
-    """At each of the CHECKPOINTS (a share of the time from the ``preset`` event to the last
-    event): the end the time left points to, over the real end, less 1. First replayed through
-    optimize/remaining.py with the phases of ``predicted`` (a PresetPlan), then as the run's
-    own progress events said it (their last ``eta_s`` before the checkpoint)."""
-    from ..optimize.remaining import Remaining
-
+def checkpoints(events: list[dict]) -> tuple[float, float, list[tuple[str, float]]]:
+    """The times of the run's ``preset`` event and of its last event, and for each of the
+    CHECKPOINTS (a share of the time between them) the share as a key and its time."""
     start = next(e["time"] for e in events if e["event"] == "preset")
     end = events[-1]["time"]
-    replayed, recorded = {}, {}
-    for share in CHECKPOINTS:
-        at = start + share * (end - start)
-        remaining, said = Remaining.from_plan(predicted, budget_s), None
+    return start, end, [(str(share), start + share * (end - start)) for share in CHECKPOINTS]
+
+
+def live_errors(events: list[dict], predicted, budget_s: float | None = None) -> dict:
+    """At each of the CHECKPOINTS: the end the time left points to, over the real end, less 1,
+    replayed through optimize/remaining.py with the phases of ``predicted`` (a PresetPlan)."""
+    from ..optimize.remaining import Remaining
+
+    start, end, points = checkpoints(events)
+    out = {}
+    for key, at in points:
+        remaining = Remaining.from_plan(predicted, budget_s)
         for e in events:
             if e["time"] > at:
                 break
             if e["time"] >= start:
                 remaining.observe(e["event"], e, e["time"])
-            if e["event"] == "progress" and e.get("eta_s") is not None:
-                said = e["time"] + e["eta_s"]
         left = remaining.seconds(at)
-        replayed[str(share)] = None if left is None else round((at + left) / end - 1, 3)
-        recorded[str(share)] = None if said is None else round(said / end - 1, 3)
-    return replayed, recorded
+        out[key] = None if left is None else round((at + left) / end - 1, 3)
+    return out
+
+
+def said_errors(events: list[dict]) -> dict:
+    """The same errors as the run's own progress events said them: their last ``eta_s`` before
+    each checkpoint."""
+    _, end, points = checkpoints(events)
+    out = {}
+    for key, at in points:
+        said = [e["time"] + e["eta_s"] for e in events
+                if e["time"] <= at and e["event"] == "progress" and e.get("eta_s") is not None]
+        out[key] = round(said[-1] / end - 1, 3) if said else None
+    return out
 
 
 def replan_rows(out: Path, rows: list[dict]) -> list[dict]:

@@ -44,7 +44,7 @@ from ..events import Emitter
 from ..optimize.forecast import GAINS_FILE, fit_line
 from ._data import SHARED_DATA
 from ._machine import code_version, machine
-from ._replan import CHECKPOINTS, live_errors
+from ._replan import CHECKPOINTS, said_errors
 from .sweep import REPO, Setting, load_history, reconstruct_child
 
 MESHES = SHARED_DATA / "meshes"
@@ -152,7 +152,7 @@ def measure(name: str, capture: Path, preset: str, out: Path, variant: str | Non
                                                      ("geometry_s", "material_s", "polish_s", "fixed_s")},
                measured=report.get("timings"))
     if promise.get("plan"):  # the run's own time left at the checkpoints, as its progress events said it
-        row["recorded_eta_error"] = live_errors(events, promise["plan"], report["settings"].get("time_budget_s"))[1]
+        row["recorded_eta_error"] = said_errors(events)
     if row["f1"] is not None and row["expected_f1"] is not None:
         row["f1_error"] = round(row["expected_f1"] - row["f1"], 4)
     if row["psnr"] is not None and row["predicted_psnr"] is not None:

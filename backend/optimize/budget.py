@@ -35,9 +35,9 @@ class Budget:
         """The share of the run done, for the progress events' ETA: elapsed / (elapsed + the time
         left) once the run has a plan (optimize/remaining.py), else from its steps or budget."""
         c, s = self.config, self.state
-        left = None if self.remaining is None else self.remaining.seconds(self.elapsed())
+        elapsed = self.elapsed()
+        left = None if self.remaining is None else self.remaining.seconds(elapsed)
         if left is not None:
-            elapsed = self.elapsed()
             return min(0.999, elapsed / max(elapsed + left, 1e-9))
         estimates = []
         if c.iterations:

@@ -21,7 +21,7 @@ from .. import variant
 from ..capture.format import FILENAME
 from ..capture.load import load_capture
 from ..errors import InputError, require
-from ..events import Emitter
+from ..events import Emitter, read_log
 from ..lighting.setup import resolve_lighting
 from ..video.inputs import check_inputs, write_capture
 from .config import STAGED_FACE_GROWTH, ReconstructConfig
@@ -91,15 +91,8 @@ def settings_from_environment() -> dict:
 
 def resumed_material(run: Path) -> str | None:
     """The material a run started with (its first ``start`` event), or None when unknown."""
-    try:
-        with open(Path(run) / "events.jsonl") as f:
-            for line in f:
-                event = json.loads(line)
-                if event.get("event") == "start":
-                    return (event.get("settings") or {}).get("material")
-    except (OSError, ValueError):
-        return None
-    return None
+    start = next((e for e in read_log(Path(run) / "events.jsonl") if e.get("event") == "start"), None)
+    return None if start is None else (start.get("settings") or {}).get("material")
 
 
 def video_inputs(args):

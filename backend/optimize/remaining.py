@@ -30,9 +30,9 @@ the clock's time), so ``bench plan --replan`` replays finished runs through the 
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass, field
-from pathlib import Path
+
+from ..events import read_log
 
 END_S = 4.0  # the last check and the outputs after the last phase
 
@@ -53,7 +53,14 @@ class Phase:
 
     @property
     def seconds(self) -> float:
-        return self.count * (self.units * self.unit_s + self.cycle_units * self.cycle_s)
+        return self.paced(1.0, 1.0)
+
+    def paced(self, step: float, cycle: float, count: float | None = None) -> float:
+        """Seconds of ``count`` (default ``self.count``) such phases, their steps at ``step``
+        times the planned pace and their material iterations at ``cycle`` times it."""
+        unit = cycle if self.kind in ("cycle", "final") else step
+        n = self.count if count is None else count
+        return n * (self.units * self.unit_s * unit + self.cycle_units * self.cycle_s * cycle)
 
     def to_json(self) -> dict:
         return {k: float(f"{v:.6g}") if isinstance(v, float) else v for k, v in self.__dict__.items()}
@@ -183,18 +190,13 @@ class Remaining:
         total = 0.0
         here = self.phases[self.index] if self.index >= 0 else None
         if here is not None and here.kind == "final":
-            total += max(here.count - self.final_done, 0.0) * here.units * here.unit_s * cycle
+            total += here.paced(step, cycle, max(here.count - self.final_done, 0.0))
         if here is not None and here.kind == "polish":
             rounds = max(here.count - self.rounds_done - (0 if self.in_polish_cycle else 1), 0.0)
             if not self.in_polish_cycle:  # this round's refinement cycle
                 total += here.cycle_units * here.cycle_s * cycle
-            total += rounds * (here.units * here.unit_s * step + here.cycle_units * here.cycle_s * cycle)
-        for p in self.phases[self.index + 1:]:
-            if p.kind == "polish":
-                total += p.count * (p.units * p.unit_s * step + p.cycle_units * p.cycle_s * cycle)
-            else:
-                total += p.count * p.units * p.unit_s * (cycle if p.kind in ("cycle", "final") else step)
-        return total
+            total += here.paced(step, cycle, rounds)
+        return total + sum(p.paced(step, cycle) for p in self.phases[self.index + 1:])
 
     def seconds(self, now: float) -> float | None:
         """Seconds left at clock time ``now``; None when there is no estimate."""
@@ -212,16 +214,7 @@ def resumed(events_path, budget_s: float | None = None) -> Remaining | None:
     """The time left of a resumed run: the plan of the process that began it (its last
     ``preset`` event with phases in ``events_path``), with every event since replayed, so that
     the phases done and their pace carry over; None without such a plan."""
-    events = []
-    try:
-        lines = Path(events_path).read_text().splitlines()
-    except OSError:
-        return None
-    for line in lines:
-        try:
-            events.append(json.loads(line))
-        except ValueError:  # a line a crash cut short
-            continue
+    events = read_log(events_path)
     planned = [i for i, e in enumerate(events) if e.get("event") == "preset" and (e.get("plan") or {}).get("phases")]
     if not planned:
         return None
