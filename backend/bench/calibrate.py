@@ -12,7 +12,8 @@ as ``reconstruct --preset NAME`` would, and writes the calibration file (default
 
 The top level is the dragon's (point lights: what time budgets and the panel use); ``kinds``
 holds every kind's, ``environment`` from the HDR-lit blob, which a capture lit by an
-environment map is promised (optimize/presets.py, ``calibrated``). Each scene is fitted with
+environment map is promised (optimize/presets.py, ``calibrated``). A kind that ``--scenes``
+leaves out keeps its entries from the file being replaced. Each scene is fitted with
 the material model its truth calls for (``MATERIALS``: one constant material for the dragon,
 the staged mesh colors for the textured blob). ``expected_f1`` is F1@0.01
 as a fraction (0.9 = 90 %). ``--from-results FILE`` writes the file from a sweep's
@@ -27,6 +28,7 @@ have. ``backend.optimize.presets.preset_for_budget`` picks a preset for a time b
 from __future__ import annotations
 
 import dataclasses
+import json
 import time
 from pathlib import Path
 
@@ -117,9 +119,11 @@ def dominated(presets: dict) -> list[tuple[str, str]]:
     return out
 
 
-def calibration(rows: list[dict], machine: dict, margin: float = 1.0) -> dict:
+def calibration(rows: list[dict], machine: dict, margin: float = 1.0, previous: dict | None = None) -> dict:
     """The calibration document from sweep rows of the calibration scenes (presets named as in
-    PRESETS): the dragon's entries at the top level, every kind's under ``kinds``."""
+    PRESETS): the dragon's entries at the top level, every kind's under ``kinds``. A kind
+    without rows keeps its entries from ``previous`` (the file being replaced), so one kind
+    can be calibrated at a time."""
     kinds = {}
     for kind, scene in KINDS.items():
         doc = scene_calibration([r for r in rows if r.get("scene", SCENE) == scene
@@ -127,9 +131,30 @@ def calibration(rows: list[dict], machine: dict, margin: float = 1.0) -> dict:
                                 machine, scene, margin)
         if doc["presets"]:
             kinds[kind] = doc
-    top = kinds.get("point") or scene_calibration([], machine, SCENE, margin)
-    return {**top, "kinds": {k: {key: d[key] for key in ("scene", "measured", "code", "presets")}
-                             for k, d in kinds.items()}}
+    old = (previous or {}).get("kinds") or {}
+    if "point" not in kinds and "point" in old:  # the top level is the point-lit kind's, as written then
+        top = {k: v for k, v in previous.items() if k != "kinds"}
+    else:
+        top = kinds.get("point") or scene_calibration([], machine, SCENE, margin)
+    fields = ("scene", "measured", "code", "presets")
+    merged = {k: {key: d[key] for key in fields} for k, d in kinds.items()}
+    merged.update({k: d for k, d in old.items() if k in KINDS and k not in kinds})
+    return {**top, "kinds": {k: merged[k] for k in KINDS if k in merged}}
+
+
+def previous_calibration(path: Path) -> dict | None:
+    """The calibration file at ``path`` (None when there is none), whose kinds a call that
+    does not run them keeps."""
+    if not path.is_file():
+        return None
+    try:
+        doc = json.loads(path.read_text())
+    except (OSError, ValueError) as exc:
+        raise InputError(path, f"not a readable calibration file ({exc})",
+                         "delete it, or write to another file with --out") from None
+    require(isinstance(doc, dict) and isinstance(doc.get("kinds", {}), dict), path, "not a calibration file",
+            "delete it, or write to another file with --out")
+    return doc
 
 
 def scene_calibration(rows: list[dict], machine: dict, scene: str, margin: float = 1.0) -> dict:
@@ -169,7 +194,7 @@ def add_arguments(parser) -> None:
                         help="F1 points a swept setting must gain to be recommended (default: %(default)s)")
     parser.add_argument("--scenes", default=",".join(KINDS.values()),
                         help="calibration scenes to run, one per kind of lighting (default: %(default)s); "
-                             "the work folder's earlier rows stand in for the others")
+                             "the work folder's earlier rows, else the --out file's entries, stand in for the others")
     parser.add_argument("--repeats", type=int, default=1, help="runs per preset (the median time is kept)")
     parser.add_argument("--variant", help="Mitsuba variant (default: automatic)")
 
@@ -187,9 +212,10 @@ def run(args) -> int:
     if args.from_results:
         require(args.from_results.is_file(), args.from_results, "results file not found",
                 "run python -m backend bench sweep first, or leave out --from-results")
-        rows = [r for r in load_results(args.from_results) if r["scene"] in KINDS.values()]
-        require(any(r["name"] in names and r["scene"] == SCENE for r in rows), args.from_results,
-                f"no {SCENE} runs of the presets", f"run python -m backend bench sweep --grid presets --scenes {SCENE}")
+        rows = [r for r in load_results(args.from_results) if r["scene"] in scenes]
+        require(any(r["name"] in names for r in rows), args.from_results,
+                f"no runs of the presets on {', '.join(scenes)}",
+                f"run python -m backend bench sweep --grid presets --scenes {','.join(scenes)}")
         info = next((r["machine"] for r in rows if r.get("machine")), machine())
         rows = [r for r in rows if r["name"] in names or r["name"] not in TARGETS]
     else:
@@ -208,7 +234,7 @@ def run(args) -> int:
             rows = [r for r in rows if (r["scene"], r["name"]) != (scene, name)] + [row]
             emit("progress", stage="calibrate", iteration=i + 1, iterations=len(todo), fraction=(i + 1) / len(todo),
                  scene=scene, preset=name, seconds=row["seconds"], f1=row.get("f1"), rc=row["rc"])
-    doc = calibration(rows, info, args.margin)
+    doc = calibration(rows, info, args.margin, previous_calibration(args.out))
     require(bool(doc["presets"]), None, "no preset run finished", f"see the logs under {args.work / 'logs'}")
     fsio.write_json(args.out, doc)
     emit("done", calibration=str(args.out),

@@ -100,3 +100,49 @@ def test_dominance_is_found_in_a_calibration_built_from_rows():
     # a run that did not record its overrides cannot vouch for the preset as it ships
     legacy = {k: v for k, v in row("draft", 68, 91.9).items() if k != "overrides"}
     assert calibration([legacy], machine)["presets"]["draft"]["overrides"] is None
+
+
+def _rows(scene: str, material: str, code: str, figures) -> list[dict]:
+    return [{"scene": scene, "name": n, "rc": 0, "seconds": t, "cpu_seconds": t, "f1": f, "knobs": {"material": material},
+             "code": code, "overrides": PRESETS[n]} for n, t, f in figures]
+
+
+def test_one_kind_is_calibrated_at_a_time_and_the_others_are_kept():
+    machine = {"cpu": "x", "cores": 2}
+    point = calibration(_rows("dragon", "constant", "abc", (("draft", 60, 92.0), ("balanced", 500, 97.0),
+                                                          ("final", 900, 98.0))), machine)
+    env = _rows("blob_env", "staged", "def", (("draft", 120, 95.0), ("balanced", 400, 96.0), ("final", 700, 97.0)))
+    doc = calibration(env, machine, previous=point)
+    assert list(doc["kinds"]) == ["point", "environment"]
+    assert doc["kinds"]["point"] == point["kinds"]["point"]  # kept as written, not rebuilt
+    assert doc["presets"] == point["presets"] and doc["scene"] == point["scene"] and doc["code"] == "abc"
+    assert doc["kinds"]["environment"]["code"] == "def"
+    # recalibrating the point-lit kind keeps the environment's entries
+    again = calibration(_rows("dragon", "constant", "ghi", (("draft", 50, 93.0),)), machine, previous=doc)
+    assert again["code"] == "ghi" and again["kinds"]["environment"] == doc["kinds"]["environment"]
+    assert list(again["presets"]) == ["draft"]
+
+
+def test_the_command_merges_a_kind_into_the_file_it_replaces(tmp_path):
+    import sys
+
+    from backend.bench.sweep import append_result
+
+    machine = {"cpu": "x", "cores": 2}
+    out = tmp_path / "presets.json"
+    out.write_text(json.dumps(calibration(_rows("dragon", "constant", "abc", (("draft", 60, 92.0),)), machine)))
+    results = tmp_path / "results.jsonl"
+    for r in _rows("blob_env", "staged", "def", (("draft", 120, 95.0), ("balanced", 400, 96.0))):
+        append_result(results, {**r, "machine": machine})
+    cmd = [sys.executable, "-m", "backend", "bench", "calibrate", "--scenes", "blob_env", "--from-results",
+           str(results), "--out", str(out)]
+    done = subprocess.run(cmd, cwd=REPO, capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+    doc = json.loads(out.read_text())
+    assert doc["code"] == "abc" and set(doc["kinds"]) == {"point", "environment"}
+    assert doc["kinds"]["environment"]["presets"]["balanced"]["expected_minutes"] == round(400 / 60, 2)
+    # a file that is not a calibration is named, not overwritten
+    out.write_text("{not json")
+    bad = subprocess.run(cmd, cwd=REPO, capture_output=True, text=True)
+    assert bad.returncode == 2 and str(out) in bad.stderr and "Traceback" not in bad.stderr
+    assert out.read_text() == "{not json"
