@@ -27,6 +27,28 @@ def calibration(root: Path = interpreter.PACKAGE_DIR) -> dict:
     return doc if isinstance(doc, dict) and isinstance(doc.get("presets"), dict) else {}
 
 
+def kind_for(lighting: str, env_path: str = "") -> str:
+    """The calibration kind a capture is promised, as the backend decides it
+    (``backend.optimize.presets.lighting_kind``): 'environment' when a map lights it (an
+    imported HDR, or one the run estimates), else 'point' (the capture's lights, a flash)."""
+    if lighting in ("ESTIMATE", "RIG") or (lighting == "CAPTURED" and env_path):
+        return "environment"
+    return "point"
+
+
+def kind_calibration(calib: dict, kind: str) -> tuple[dict, str]:
+    """(entries, what they were measured on) for ``kind``: its own calibration when the file
+    has one, else the point-lit one with a warning for an HDR-lit capture."""
+    own = (calib.get("kinds") or {}).get(kind) if calib else None
+    if isinstance(own, dict) and isinstance(own.get("presets"), dict):
+        doc = {**own, "machine": calib.get("machine")}
+        return doc, ("Times measured on an HDR-lit object" if kind == "environment"
+                     else "Times measured on a point-lit object")
+    if kind == "environment":
+        return calib, "Times measured on a point-lit object; HDR-lit captures take longer"
+    return calib, "Times measured on a point-lit object"
+
+
 def describe(preset: str, calib: dict) -> str:
     """'~12 min, F1 0.91 (machine)' or 'not calibrated'."""
     entry = calib.get("presets", {}).get(preset) if calib else None

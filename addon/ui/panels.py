@@ -107,12 +107,13 @@ class SFT_PT_reconstruct(_Panel, bpy.types.Panel):
         col = layout.column()
         col.enabled = not running
         col.prop(sft, "preset")
-        calibration = presets.calibration()
+        calibration, measured_on = presets.kind_calibration(presets.calibration(),
+                                                            presets.kind_for(sft.lighting, sft.env_path))
         box = col.box().column(align=True)
         for key, label, _ in presets.PRESETS:
             box.label(text=f"{label}: {presets.describe(key, calibration)}",
                       icon="RADIOBUT_ON" if key == sft.preset else "RADIOBUT_OFF")
-        box.label(text="Times measured on a point-lit object; HDR-lit captures take longer", icon="INFO")
+        box.label(text=measured_on, icon="INFO")
         plan = jobs.ACTIVE.get("plan")
         row = box.row(align=True)
         if plan is not None and plan.running:

@@ -182,6 +182,20 @@ def test_presets_calibration(tmp_path):
     calib = presets.calibration(tmp_path)
     assert presets.describe("draft", calib) == "~3.5 min, F1 0.81 on 2-core CI"
     assert presets.describe("final", calib) == "not calibrated"
+    # an HDR-lit capture is shown its own kind's figures, else the point-lit ones with a warning
+    assert presets.kind_for("ESTIMATE") == presets.kind_for("RIG") == "environment"
+    assert presets.kind_for("CAPTURED", "/maps/studio.hdr") == "environment"
+    assert presets.kind_for("CAPTURED") == presets.kind_for("FLASH", "/maps/studio.hdr") == "point"
+    entries, note = presets.kind_calibration(calib, "environment")
+    assert entries is calib and note.endswith("HDR-lit captures take longer")
+    calib["kinds"] = {"point": {"presets": calib["presets"]},
+                      "environment": {"presets": {"draft": {"expected_minutes": 4.8, "expected_f1": 0.97}}}}
+    entries, note = presets.kind_calibration(calib, "environment")
+    assert presets.describe("draft", entries) == "~4.8 min, F1 0.97 on 2-core CI"
+    assert note == "Times measured on an HDR-lit object"
+    entries, note = presets.kind_calibration(calib, "point")
+    assert presets.describe("draft", entries) == "~3.5 min, F1 0.81 on 2-core CI"
+    assert note == "Times measured on a point-lit object"
     (tmp_path / "backend" / "presets.json").write_text("{not json")
     assert presets.calibration(tmp_path) == {}
 

@@ -48,10 +48,19 @@ class RecordingLayout:
         self.log.append(("progress", round(factor, 3), text))
 
 
-def expected_cost(preset: str) -> str:
-    """What the panel should say for a preset, read straight from the shipped calibration file."""
+def shipped_kind(kind: str) -> tuple[dict, bool]:
+    """The shipped calibration file's entries for ``kind`` (the point-lit ones when it has no
+    such kind) and whether they are that kind's own."""
     calibration = json.loads((REPO / "backend" / "presets.json").read_text())
-    entry, machine = calibration["presets"].get(preset), calibration["machine"]
+    own = calibration.get("kinds", {}).get(kind)
+    return (own["presets"], True) if own else (calibration["presets"], False)
+
+
+def expected_cost(preset: str, kind: str = "point") -> str:
+    """What the panel should say for a preset, read straight from the shipped calibration file."""
+    entries, _ = shipped_kind(kind)
+    machine = json.loads((REPO / "backend" / "presets.json").read_text())["machine"]
+    entry = entries.get(preset)
     if entry is None:
         return "not calibrated"
     return f"~{entry['expected_minutes']:.3g} min, F1 {entry['expected_f1']:.2f} on {machine}"
@@ -70,9 +79,11 @@ def test_panels_draw_in_an_empty_scene(context):
     assert ("operator", "sft.solve_cameras", True) in log["SFT_PT_cameras"]
     assert ("operator", "sft.reconstruct", True) in log["SFT_PT_reconstruct"]
     labels = [entry[1] for entry in log["SFT_PT_reconstruct"] if entry[0] == "label"]
-    assert labels[:3] == [f"{title}: {expected_cost(key)}" for key, title in
-                          (("draft", "Draft"), ("balanced", "Balanced"), ("final", "Final"))]
-    assert "Times measured on a point-lit object; HDR-lit captures take longer" in labels
+    # the default lighting estimates a map: the HDR-lit kind's figures where the file has them
+    titles = (("draft", "Draft"), ("balanced", "Balanced"), ("final", "Final"))
+    assert labels[:3] == [f"{title}: {expected_cost(key, 'environment')}" for key, title in titles]
+    assert ("Times measured on an HDR-lit object" if shipped_kind("environment")[1] else
+            "Times measured on a point-lit object; HDR-lit captures take longer") in labels
     assert any(label.startswith("Lighting estimated with the material") for label in labels)  # the default
     props = [entry[1] for entry in log["SFT_PT_reconstruct"] if entry[0] == "prop"]
     assert props == ["preset", "time_budget", "track_accuracy", "material", "init", "effects", "lighting"], \
@@ -80,6 +91,9 @@ def test_panels_draw_in_an_empty_scene(context):
     context.scene.sft.lighting = "CAPTURED"
     labels = [e[1] for e in draw("SFT_PT_reconstruct", context) if e[0] == "label"]
     assert "No lighting: Import Environment Map" in labels
+    # the capture's own lights: the point-lit kind's figures
+    assert labels[:3] == [f"{title}: {expected_cost(key)}" for key, title in titles]
+    assert "Times measured on a point-lit object" in labels
     context.scene.sft.lighting = "ESTIMATE"
     assert [e[1] for e in draw("SFT_PT_reconstruct_advanced", context) if e[0] == "prop"] == ["extra_args"]
     context.scene.sft.init = "OBJECT"
