@@ -131,14 +131,15 @@ def calibration(rows: list[dict], machine: dict, margin: float = 1.0, previous: 
                                 machine, scene, margin)
         if doc["presets"]:
             kinds[kind] = doc
-    old = (previous or {}).get("kinds") or {}
+    previous = previous or {}
+    old = previous.get("kinds") or ({"point": previous} if isinstance(previous.get("presets"), dict) else {})
     if "point" not in kinds and "point" in old:  # the top level is the point-lit kind's, as written then
         top = {k: v for k, v in previous.items() if k != "kinds"}
     else:
         top = kinds.get("point") or scene_calibration([], machine, SCENE, margin)
     fields = ("scene", "measured", "code", "presets")
     merged = {k: {key: d[key] for key in fields} for k, d in kinds.items()}
-    merged.update({k: d for k, d in old.items() if k in KINDS and k not in kinds})
+    merged.update({k: {key: d.get(key) for key in fields} for k, d in old.items() if k in KINDS and k not in kinds})
     return {**top, "kinds": {k: merged[k] for k in KINDS if k in merged}}
 
 

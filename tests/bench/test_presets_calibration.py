@@ -121,6 +121,9 @@ def test_one_kind_is_calibrated_at_a_time_and_the_others_are_kept():
     again = calibration(_rows("dragon", "constant", "ghi", (("draft", 50, 93.0),)), machine, previous=doc)
     assert again["code"] == "ghi" and again["kinds"]["environment"] == doc["kinds"]["environment"]
     assert list(again["presets"]) == ["draft"]
+    # a file written before kinds existed is the point-lit kind's
+    legacy = {k: v for k, v in point.items() if k != "kinds"}
+    assert calibration(env, machine, previous=legacy)["kinds"]["point"] == point["kinds"]["point"]
 
 
 def test_the_command_merges_a_kind_into_the_file_it_replaces(tmp_path):
