@@ -28,13 +28,17 @@ INIT_HELP = "carve (visual hull; default with masks), sphere, box, spheres (sphe
 
 
 def _calibration_help() -> str:
-    """Each preset's calibrated time and F1 (backend/presets.json), for --help."""
-    entries = calibrated()
-    if not entries:
+    """Each preset's calibrated time and F1 per kind of lighting (backend/presets.json), for --help."""
+    lines = []
+    for kind, scene in (("point", "the point-lit dragon"), ("environment", "the HDR-lit blob")):
+        entries = calibrated(kind=kind)
+        if entries:
+            parts = [f"{name} ~{e['expected_minutes']:.3g} min, F1@0.01 {100 * e.get('expected_f1', 0):.1f}"
+                     for name, e in entries.items()]
+            lines.append(f"on {scene}: {'; '.join(parts)}")
+    if not lines:
         return "Not calibrated (python -m backend bench calibrate)."
-    parts = [f"{name} ~{e['expected_minutes']:.3g} min, F1@0.01 {100 * e.get('expected_f1', 0):.1f}"
-             for name, e in entries.items()]
-    return f"Calibrated on the dragon benchmark: {'; '.join(parts)} (backend/presets.json)."
+    return f"Calibrated {' and '.join(lines)} (backend/presets.json; a time budget reads the capture's kind)."
 
 
 def add_arguments(parser):

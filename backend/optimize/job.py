@@ -40,10 +40,13 @@ PATH_OPTIONS = ("--out", "--masks", "--env", "--init")
 
 
 def choose_preset(args) -> str:
-    """The preset asked for; else, with a time budget, the calibrated one that fits it."""
+    """The preset asked for; else, with a time budget, the calibrated one that fits it (by the
+    calibration of ``args.lighting_kind``, set once the capture's lighting is known)."""
     if args.preset:
         return args.preset
-    return preset_for_budget(args.time_budget) if args.time_budget is not None else DEFAULT
+    if args.time_budget is None:
+        return DEFAULT
+    return preset_for_budget(args.time_budget, kind=getattr(args, "lighting_kind", None) or "point")
 
 
 def config_from_args(args) -> ReconstructConfig:
@@ -148,6 +151,11 @@ def run(args) -> int:
     capture = load_capture(args.capture) if video is None else None
     config.lighting = resolve_lighting(capture, args.lighting, args.env, args.env_strength, args.env_rotation,
                                        args.capture, video_light=video is not None and video.environment is not None)
+    before = choose_preset(args)
+    args.lighting_kind = ("environment" if video is not None and video.environment is not None
+                          else lighting_kind(capture, config.lighting))
+    if choose_preset(args) != before:  # a time budget's preset, by the capture's kind of lighting
+        config = dataclasses.replace(config_from_args(args), lighting=config.lighting)
     chosen = variant.choose(args.variant)
     from .appearance import Appearance  # these need the Mitsuba variant chosen just above
     from .run import reconstruct, reported

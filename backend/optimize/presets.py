@@ -4,8 +4,8 @@ A preset is a set of overrides of ``ReconstructConfig``'s defaults; options give
 command line win over it. ``backend/presets.json`` (written by ``python -m backend bench
 calibrate``) records, per preset, the wall clock and F1@0.01 it reached on the dragon
 benchmark on the machine named there (and, under ``kinds``, on the calibration scene of each
-kind of lighting); :func:`preset_for_budget` reads the dragon's to turn a time budget into a
-preset."""
+kind of lighting); :func:`preset_for_budget` reads the capture's kind (the dragon's where
+that kind is not calibrated) to turn a time budget into a preset."""
 
 from __future__ import annotations
 
@@ -63,12 +63,15 @@ def calibrated(path: Path = CALIBRATION_FILE, kind: str = "point") -> dict[str, 
             if name in PRESETS and isinstance(p, dict) and isinstance(p.get("expected_minutes"), (int, float))}
 
 
-def preset_for_budget(minutes: float, path: Path = CALIBRATION_FILE, default: str = DEFAULT) -> str:
-    """The most accurate calibrated preset whose expected time fits ``minutes``.
+def preset_for_budget(minutes: float, path: Path = CALIBRATION_FILE, default: str = DEFAULT,
+                      kind: str = "point") -> str:
+    """The most accurate calibrated preset whose expected time fits ``minutes``, by the
+    calibration of ``kind`` (the capture's lighting; the point-lit one where that kind is
+    not calibrated).
 
     When none fits, the fastest calibrated preset (it will run against the budget); without a
     calibration file (or with no usable entries), ``default``."""
-    entries = calibrated(path)
+    entries = calibrated(path, kind) or calibrated(path)
     if not entries:
         return default
     fits = [n for n, p in entries.items() if p["expected_minutes"] <= minutes]

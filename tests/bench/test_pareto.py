@@ -92,6 +92,15 @@ def test_preset_for_budget_picks_the_most_accurate_preset_that_fits(tmp_path):
     assert preset_for_budget(2, path) == "draft"
     assert preset_for_budget(9.5, path) == "balanced"
     assert preset_for_budget(60, path) == "final"
+    # a kind without its own calibration reads the point-lit one; one with its own reads it
+    assert preset_for_budget(9.5, path, kind="environment") == "balanced"
+    doc = json.loads(path.read_text())
+    doc["kinds"] = {"point": {"presets": doc["presets"]}, "environment": {"presets": {
+        "draft": {"expected_minutes": 5.0, "expected_f1": 0.95},
+        "balanced": {"expected_minutes": 22.0, "expected_f1": 0.97}}}}
+    path.write_text(json.dumps(doc))
+    assert preset_for_budget(9.5, path, kind="environment") == "draft"
+    assert preset_for_budget(9.5, path) == "balanced"
     path.write_text("{broken")
     assert preset_for_budget(60, path) == "balanced"
 

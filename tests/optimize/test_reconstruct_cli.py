@@ -125,8 +125,9 @@ def test_time_budget_picks_the_calibrated_preset_and_stops_on_time(capture, tmp_
                    timeout=300)
     assert proc.returncode == 0, proc.stderr[-3000:]
     chosen = next(e for e in events(run) if e["event"] == "preset")
-    assert chosen["chosen_for_budget"] and chosen["preset"] == preset_for_budget(minutes)
-    assert chosen["expected_minutes"] == calibrated().get(chosen["preset"], {}).get("expected_minutes")
+    kind = chosen["lighting_kind"]  # the budget is read against the calibration of the capture's lighting
+    assert chosen["chosen_for_budget"] and chosen["preset"] == preset_for_budget(minutes, kind=kind)
+    assert chosen["expected_minutes"] == calibrated(kind=kind).get(chosen["preset"], {}).get("expected_minutes")
     report = json.loads((run / "report.json").read_text())
     settings = report["settings"]
     assert settings["time_budget_s"] == 60 * minutes
