@@ -90,7 +90,7 @@ JOBS = (
     Job("sweep", "Accuracy versus time: the sweep and the presets", 3.4,
         (("bench", "sweep", "--grid", "quick", "--out", "{out}", "--report", "{report}"),)),
     Job("calibrate", "Accuracy versus time: the sweep and the presets", 1.5,
-        (("bench", "calibrate", "--scenes", "dragon,blob_env", "--out", "{out}/presets.json", "--work", "{out}/work"),)),
+        (("bench", "calibrate", "--scenes", "dragon,armadillo_env", "--out", "{out}/presets.json", "--work", "{out}/work"),)),
     Job("plan", "Predicted time: a cost model per capture (issue #23)", 1.5, (
         ("bench", "plan", "--calibrate", "--preset", "draft", "--out", "{out}/calibrate",
          "--gains-file", "{out}/forecast.json"),

@@ -30,7 +30,7 @@ INIT_HELP = "carve (visual hull; default with masks), sphere, box, spheres (sphe
 def _calibration_help() -> str:
     """Each preset's calibrated time and F1 per kind of lighting (backend/presets.json), for --help."""
     lines = []
-    for kind, scene in (("point", "the point-lit dragon"), ("environment", "the HDR-lit blob")):
+    for kind, scene in (("point", "the point-lit dragon"), ("environment", "the HDR-lit armadillo")):
         entries = calibrated(kind=kind)
         if entries:
             parts = [f"{name} ~{e['expected_minutes']:.3g} min, F1@0.01 {100 * e.get('expected_f1', 0):.1f}"

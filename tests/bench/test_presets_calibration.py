@@ -88,10 +88,10 @@ def test_dominance_is_found_in_a_calibration_built_from_rows():
     assert dominated(doc["presets"]) == [("final", "balanced")]
     assert all(doc["presets"][n]["overrides"] == PRESETS[n] for n in PRESETS)
     assert doc["code"] == "abc" and list(doc["kinds"]) == ["point"]
-    hdr = [{**row(n, t, f), "scene": "blob_env", "code": "def", "knobs": {"material": "staged"}} for n, t, f in
+    hdr = [{**row(n, t, f), "scene": "armadillo_env", "code": "def"} for n, t, f in
            (("draft", 50, 95.0), ("balanced", 300, 97.0), ("final", 600, 98.0))]
-    # a row fitted with another material than the scene's (a constant-material sweep) is not the preset's
-    stale = {**row("final", 100, 99.0), "scene": "blob_env", "code": "old"}
+    # a row fitted with another material than the scene's is not the preset's
+    stale = {**row("final", 100, 99.0), "scene": "armadillo_env", "code": "old", "knobs": {"material": "staged"}}
     doc = calibration([row("draft", 68, 91.9), row("balanced", 399, 97.2), row("final", 746, 97.9), stale] + hdr,
                       machine)
     assert dominated(doc["presets"]) == [] and doc["kinds"]["environment"]["code"] == "def"
@@ -111,7 +111,7 @@ def test_one_kind_is_calibrated_at_a_time_and_the_others_are_kept():
     machine = {"cpu": "x", "cores": 2}
     point = calibration(_rows("dragon", "constant", "abc", (("draft", 60, 92.0), ("balanced", 500, 97.0),
                                                           ("final", 900, 98.0))), machine)
-    env = _rows("blob_env", "staged", "def", (("draft", 120, 95.0), ("balanced", 400, 96.0), ("final", 700, 97.0)))
+    env = _rows("armadillo_env", "constant", "def", (("draft", 120, 95.0), ("balanced", 400, 96.0), ("final", 700, 97.0)))
     doc = calibration(env, machine, previous=point)
     assert list(doc["kinds"]) == ["point", "environment"]
     assert doc["kinds"]["point"] == point["kinds"]["point"]  # kept as written, not rebuilt
@@ -135,9 +135,9 @@ def test_the_command_merges_a_kind_into_the_file_it_replaces(tmp_path):
     out = tmp_path / "presets.json"
     out.write_text(json.dumps(calibration(_rows("dragon", "constant", "abc", (("draft", 60, 92.0),)), machine)))
     results = tmp_path / "results.jsonl"
-    for r in _rows("blob_env", "staged", "def", (("draft", 120, 95.0), ("balanced", 400, 96.0))):
+    for r in _rows("armadillo_env", "constant", "def", (("draft", 120, 95.0), ("balanced", 400, 96.0))):
         append_result(results, {**r, "machine": machine})
-    cmd = [sys.executable, "-m", "backend", "bench", "calibrate", "--scenes", "blob_env", "--from-results",
+    cmd = [sys.executable, "-m", "backend", "bench", "calibrate", "--scenes", "armadillo_env", "--from-results",
            str(results), "--out", str(out)]
     done = subprocess.run(cmd, cwd=REPO, capture_output=True, text=True)
     assert done.returncode == 0, done.stderr
