@@ -89,7 +89,7 @@ JOBS = (
     Job("stability", "Numerical stability", 0.3, (("bench", "stability", "--quick", "--out", "{out}"),)),
     Job("sweep", "Accuracy versus time: the sweep and the presets", 3.4,
         (("bench", "sweep", "--grid", "quick", "--out", "{out}", "--report", "{report}"),)),
-    Job("calibrate", "Accuracy versus time: the sweep and the presets", 1.5,
+    Job("calibrate", "Accuracy versus time: the sweep and the presets", 1.8,
         (("bench", "calibrate", "--scenes", "dragon,armadillo_env", "--out", "{out}/presets.json", "--work", "{out}/work"),)),
     Job("plan", "Predicted time: a cost model per capture (issue #23)", 1.5, (
         ("bench", "plan", "--calibrate", "--preset", "draft", "--out", "{out}/calibrate",
