@@ -237,7 +237,8 @@ def run(args) -> int:
             emit("progress", stage="calibrate", iteration=i + 1, iterations=len(todo), fraction=(i + 1) / len(todo),
                  scene=scene, preset=name, seconds=row["seconds"], f1=row.get("f1"), rc=row["rc"])
     doc = calibration(rows, info, args.margin, previous_calibration(args.out))
-    require(bool(doc["presets"]), None, "no preset run finished", f"see the logs under {args.work / 'logs'}")
+    require(any(d["presets"] for d in doc["kinds"].values()), None, "no preset run finished",
+            f"see the logs under {args.work / 'logs'}")
     fsio.write_json(args.out, doc)
     emit("done", calibration=str(args.out),
          kinds={kind: {n: {k: p[k] for k in ("expected_minutes", "expected_f1")} for n, p in d["presets"].items()}
