@@ -414,7 +414,9 @@ def test_a_capture_with_no_light_is_refused_and_env_lights_it(capture, tmp_path)
     assert promise["lighting_kind"] == "environment" and promise["calibrated_on"] == calibration_scene("environment")
     hdr = calibrated(kind="environment").get(promise["preset"], {})
     assert promise["expected_minutes"] == hdr.get("expected_minutes") and promise["expected_f1"] == hdr.get("expected_f1")
-    assert promise["calibrated_on"] is None or promise["calibrated_on"].startswith("blob_env")
+    from backend.bench.calibrate import KINDS
+
+    assert promise["calibrated_on"] is None or promise["calibrated_on"].startswith(KINDS["environment"] + ":")
 
 
 def test_cancel_stops_a_material_stage_within_seconds(capture, tmp_path):
