@@ -138,10 +138,9 @@ def calibration(rows: list[dict], machine: dict, margin: float = 1.0, previous: 
         top = {k: v for k, v in previous.items() if k != "kinds"}
     else:
         top = kinds.get("point") or scene_calibration([], machine, SCENE, margin)
-    fields = ("scene", "measured", "code", "presets")
-    merged = {k: {key: d[key] for key in fields} for k, d in kinds.items()}
-    merged.update({k: {key: d.get(key) for key in fields} for k, d in old.items() if k in KINDS and k not in kinds})
-    return {**top, "kinds": {k: merged[k] for k in KINDS if k in merged}}
+    sources = {**{k: d for k, d in old.items() if k in KINDS}, **kinds}  # this call's rows win
+    return {**top, "kinds": {k: {key: sources[k].get(key) for key in ("scene", "measured", "code", "presets")}
+                             for k in KINDS if k in sources}}
 
 
 def previous_calibration(path: Path) -> dict | None:
