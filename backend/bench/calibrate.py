@@ -14,9 +14,9 @@ The top level is the dragon's (point lights); ``kinds`` holds every kind's, ``en
 from the armadillo under an HDR map, which shades itself (the HDR-lit case where more levels
 pay), which a capture lit by an environment map is promised and its time budget read against
 (optimize/presets.py, ``calibrated``). A kind that ``--scenes`` leaves out keeps its entries
-from the file being replaced. Each scene is fitted with the material model its truth calls for
-(``MATERIALS``: one constant glossy material for both). ``expected_f1`` is F1@0.01
-as a fraction (0.9 = 90 %). ``--from-results FILE`` writes the file from a sweep's
+from the file being replaced, and so does a preset that ``--presets`` leaves out. Each scene is
+fitted with the material model its truth calls for (``MATERIALS``: one constant glossy
+material for both). ``expected_f1`` is F1@0.01 as a fraction (0.9 = 90 %). ``--from-results FILE`` writes the file from a sweep's
 ``results.jsonl`` instead of running anything; then each preset also gets
 ``recommended_overrides`` (ReconstructConfig fields, as in ``optimize/presets.py``): the
 settings of the most accurate swept run that fits the preset's time target, when it beats the
@@ -120,20 +120,33 @@ def dominated(presets: dict) -> list[tuple[str, str]]:
     return out
 
 
+def _keep(new: dict, old: dict | None) -> dict:
+    """``new`` (a kind's calibration from this call's rows) with the presets it did not run
+    taken from ``old`` (the same kind in the file being replaced), so one preset can be
+    measured again alone; the commits and date then cover both."""
+    kept = {n: e for n, e in ((old or {}).get("presets") or {}).items() if n not in new["presets"]}
+    if not kept:
+        return new
+    codes = {c.strip() for doc in (new, old) for c in str(doc.get("code") or "").split(",") if c.strip()}
+    return {**new, "presets": {n: new["presets"].get(n) or kept[n] for n in TARGETS if n in new["presets"] or n in kept},
+            "code": ", ".join(sorted(codes)), "measured": max(new["measured"], old.get("measured") or "")}
+
+
 def calibration(rows: list[dict], machine: dict, margin: float = 1.0, previous: dict | None = None) -> dict:
     """The calibration document from sweep rows of the calibration scenes (presets named as in
     PRESETS): the dragon's entries at the top level, every kind's under ``kinds``. A kind
-    without rows keeps its entries from ``previous`` (the file being replaced), so one kind
-    can be calibrated at a time."""
+    without rows keeps its entries from ``previous`` (the file being replaced), and a kind
+    with rows keeps the presets they leave out, so one kind, or one preset, can be
+    calibrated at a time."""
+    previous = previous or {}
+    old = previous.get("kinds") or ({"point": previous} if isinstance(previous.get("presets"), dict) else {})
     kinds = {}
     for kind, scene in KINDS.items():
         doc = scene_calibration([r for r in rows if r.get("scene", SCENE) == scene
                                  and r.get("knobs", {}).get("material", "constant") == MATERIALS[scene]],
                                 machine, scene, margin)
         if doc["presets"]:
-            kinds[kind] = doc
-    previous = previous or {}
-    old = previous.get("kinds") or ({"point": previous} if isinstance(previous.get("presets"), dict) else {})
+            kinds[kind] = _keep(doc, old.get(kind))
     if "point" not in kinds and "point" in old:  # the top level is the point-lit kind's, as written then
         top = {k: v for k, v in previous.items() if k != "kinds"}
     else:

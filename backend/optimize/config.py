@@ -64,6 +64,7 @@ class ReconstructConfig:
     min_level_iterations: int = 30
     max_levels: int = 12
     level_tolerance: float = 0.003
+    min_levels: int = 1  # levels run before the level_tolerance test may end refinement
     # with --material staged: geometry rounds at the final face count under the fitted material
     # (see Reconstruction._polish), while a round lowers the validation loss by polish_tolerance
     polish_rounds: int = 4

@@ -16,9 +16,10 @@ PRESETS = {
     # a quick look: two polish rounds at most (four can take longer than its three levels)
     "draft": {"max_size": 96, "coarse_size": 48, "initial_faces": 2000, "max_levels": 3, "level_iterations": 120,
               "validation_views": 4, "polish_rounds": 2},
-    # at most six levels; Final runs them until the surface stops improving (the defaults)
+    # at most six levels; Final runs at least one more, then until the surface stops improving,
+    # so that it never stops short of Balanced (a flat level can end refinement early)
     "balanced": {"max_levels": 6},
-    "final": {},
+    "final": {"min_levels": 7},
 }
 DEFAULT = "balanced"
 CALIBRATION_FILE = Path(__file__).resolve().parents[1] / "presets.json"

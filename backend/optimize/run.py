@@ -225,7 +225,7 @@ class Reconstruction:
             return "iterations" if self.budget.out_of_iterations() else "time budget"
         if s.level + 1 >= c.max_levels:
             return "max levels"
-        if not keeps_improving(previous, record, c.level_tolerance):
+        if s.level + 1 >= c.min_levels and not keeps_improving(previous, record, c.level_tolerance):
             return "converged"
         if s.budget.limit > c.max_faces:
             return "max faces"

@@ -117,10 +117,12 @@ def test_one_kind_is_calibrated_at_a_time_and_the_others_are_kept():
     assert doc["kinds"]["point"] == point["kinds"]["point"]  # kept as written, not rebuilt
     assert doc["presets"] == point["presets"] and doc["scene"] == point["scene"] and doc["code"] == "abc"
     assert doc["kinds"]["environment"]["code"] == "def"
-    # recalibrating the point-lit kind keeps the environment's entries
-    again = calibration(_rows("dragon", "constant", "ghi", (("draft", 50, 93.0),)), machine, previous=doc)
-    assert again["code"] == "ghi" and again["kinds"]["environment"] == doc["kinds"]["environment"]
-    assert list(again["presets"]) == ["draft"]
+    # recalibrating one preset of the point-lit kind keeps the others and the environment's entries
+    again = calibration(_rows("dragon", "constant", "ghi", (("final", 950, 98.5),)), machine, previous=doc)
+    assert again["code"] == "abc, ghi" and again["kinds"]["environment"] == doc["kinds"]["environment"]
+    assert list(again["presets"]) == ["draft", "balanced", "final"] and again["kinds"]["point"]["code"] == "abc, ghi"
+    assert again["presets"]["final"]["expected_minutes"] == round(950 / 60, 2)
+    assert again["presets"]["draft"] == point["presets"]["draft"]
     # a file written before kinds existed is the point-lit kind's
     legacy = {k: v for k, v in point.items() if k != "kinds"}
     assert calibration(env, machine, previous=legacy)["kinds"]["point"] == point["kinds"]["point"]
