@@ -61,5 +61,8 @@ def describe(preset: str, calib: dict) -> str:
         parts.append(f"F1 {entry['expected_f1']:.2f}")
     if not parts:
         return "not calibrated"
+    by = entry.get("dominated_by")
+    if isinstance(by, str) and by:  # measured no more accurate than a cheaper preset here
+        parts[-1] += f" (no gain over {by.capitalize()})"
     machine = calib.get("machine")
     return ", ".join(parts) + (f" on {machine}" if isinstance(machine, str) and machine else "")

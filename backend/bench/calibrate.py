@@ -22,8 +22,10 @@ material for both). ``expected_f1`` is F1@0.01 as a fraction (0.9 = 90 %). ``--f
 settings of the most accurate swept run that fits the preset's time target, when it beats the
 preset by more than ``--margin`` F1 points. Each entry records the preset's ``overrides`` as
 they were measured and ``code`` the commit; the ``done`` event lists presets another one
-dominates (as fast or faster and as accurate or more), which a shipped calibration must not
-have. ``backend.optimize.presets.preset_for_budget`` picks a preset for a time budget from the file."""
+dominates (as fast or faster and as accurate or more), and the file marks each with
+``dominated_by``: the point-lit kind must have none; in another kind a marked preset buys
+nothing there, so a time budget never picks it and the panel says so.
+``backend.optimize.presets.preset_for_budget`` picks a preset for a time budget from the file."""
 
 from __future__ import annotations
 
@@ -110,7 +112,7 @@ def recommend(name: str, preset_row: dict, rows: list[dict], margin: float) -> d
 
 def dominated(presets: dict) -> list[tuple[str, str]]:
     """(preset, by) for every calibrated preset that another is at least as fast and at least as
-    accurate as; a shipped calibration has none (tests/bench/test_presets_calibration.py)."""
+    accurate as (F1@0.01)."""
     out = []
     for name, p in presets.items():
         for other, q in presets.items():
@@ -132,6 +134,16 @@ def _keep(new: dict, old: dict | None) -> dict:
             "code": ", ".join(sorted(codes)), "measured": max(new["measured"], old.get("measured") or "")}
 
 
+def flag_dominated(doc: dict) -> dict:
+    """``doc`` (a kind's calibration) with ``dominated_by`` on each preset that a cheaper one
+    dominates, naming that one: a time budget never picks it and the panel says it buys
+    nothing there. The point-lit kind must have none (tests/bench/test_presets_calibration.py)."""
+    presets = {n: {k: v for k, v in e.items() if k != "dominated_by"} for n, e in doc["presets"].items()}
+    for name, by in dominated(presets):
+        presets[name]["dominated_by"] = by
+    return {**doc, "presets": presets}
+
+
 def calibration(rows: list[dict], machine: dict, margin: float = 1.0, previous: dict | None = None) -> dict:
     """The calibration document from sweep rows of the calibration scenes (presets named as in
     PRESETS): the dragon's entries at the top level, every kind's under ``kinds``. A kind
@@ -146,7 +158,7 @@ def calibration(rows: list[dict], machine: dict, margin: float = 1.0, previous: 
                                  and r.get("knobs", {}).get("material", "constant") == MATERIALS[scene]],
                                 machine, scene, margin)
         if doc["presets"]:
-            kinds[kind] = _keep(doc, old.get(kind))
+            kinds[kind] = flag_dominated(_keep(doc, old.get(kind)))
     if "point" not in kinds and "point" in old:  # the top level is the point-lit kind's, as written then
         top = {k: v for k, v in previous.items() if k != "kinds"}
     else:

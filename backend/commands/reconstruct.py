@@ -34,6 +34,7 @@ def _calibration_help() -> str:
         entries = calibrated(kind=kind)
         if entries:
             parts = [f"{name} ~{e['expected_minutes']:.3g} min, F1@0.01 {100 * e.get('expected_f1', 0):.1f}"
+                     + (f" (no gain over {e['dominated_by']})" if e.get("dominated_by") else "")
                      for name, e in entries.items()]
             lines.append(f"on {scene}: {'; '.join(parts)}")
     if not lines:

@@ -218,6 +218,17 @@ def safe_probe(probe, capture, config, held=None, warn=print, mesh=None):
         return None
 
 
+def _preset_note(preset: str, expected: dict, kind: str) -> str | None:
+    """What the ``preset`` event warns of: no calibration for the kind, or a preset that a
+    cheaper one matched on the kind's calibration scene."""
+    if not expected:
+        return f"no calibration scene lit as this capture is ({kind}); the time comes from this capture's measured steps"
+    if expected.get("dominated_by"):
+        return (f"{preset} was no more accurate than {expected['dominated_by']} on the calibration scene lit as "
+                f"this capture is ({kind}), in more time")
+    return None
+
+
 def _preset_event(args, emit, config, capture):
     """The ``preset`` event: the preset chosen, its calibrated figures and this capture's
     predicted time. A new run announces it once its effects are decided (the planner it
@@ -252,8 +263,7 @@ def _preset_event(args, emit, config, capture):
              probe=None if plan is None else plan.probe,
              plan=None if plan is None else {**plan.presets[preset].to_json(), "costs": plan.costs.to_json(),
                                              "render_settings": plan.settings},
-             note=None if expected else f"no calibration scene lit as this capture is ({kind}); the time "
-                                        "comes from this capture's measured steps")
+             dominated_by=expected.get("dominated_by"), note=_preset_note(preset, expected, kind))
         return None if plan is None else plan.presets[preset]  # the run's time left follows it (optimize/remaining.py)
 
     if args.resume:

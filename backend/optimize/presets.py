@@ -75,6 +75,8 @@ def preset_for_budget(minutes: float, path: Path = CALIBRATION_FILE, default: st
     entries = calibrated(path, kind) or calibrated(path)
     if not entries:
         return default
+    # a preset a cheaper one dominates on the kind's scene buys nothing there
+    entries = {n: p for n, p in entries.items() if not p.get("dominated_by")} or entries
     fits = [n for n, p in entries.items() if p["expected_minutes"] <= minutes]
     if fits:
         return max(fits, key=lambda n: (entries[n].get("expected_f1") or 0.0, -entries[n]["expected_minutes"]))

@@ -189,9 +189,13 @@ def test_presets_calibration(tmp_path):
     entries, note = presets.kind_calibration(calib, "environment")
     assert entries is calib and note.endswith("HDR-lit captures take longer")
     calib["kinds"] = {"point": {"presets": calib["presets"]},
-                      "environment": {"presets": {"draft": {"expected_minutes": 4.8, "expected_f1": 0.97}}}}
+                      "environment": {"presets": {"draft": {"expected_minutes": 4.8, "expected_f1": 0.97},
+                                                  "final": {"expected_minutes": 9.0, "expected_f1": 0.96,
+                                                            "dominated_by": "draft"}}}}
     entries, note = presets.kind_calibration(calib, "environment")
     assert presets.describe("draft", entries) == "~4.8 min, F1 0.97 on 2-core CI"
+    # a preset a cheaper one matched on that kind's scene says it buys nothing there
+    assert presets.describe("final", entries) == "~9 min, F1 0.96 (no gain over Draft) on 2-core CI"
     assert note == "Times measured on an HDR-lit object"
     entries, note = presets.kind_calibration(calib, "point")
     assert presets.describe("draft", entries) == "~3.5 min, F1 0.81 on 2-core CI"

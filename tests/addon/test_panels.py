@@ -63,7 +63,8 @@ def expected_cost(preset: str, kind: str = "point") -> str:
     entry = entries.get(preset)
     if entry is None:
         return "not calibrated"
-    return f"~{entry['expected_minutes']:.3g} min, F1 {entry['expected_f1']:.2f} on {machine}"
+    by = f" (no gain over {entry['dominated_by'].capitalize()})" if entry.get("dominated_by") else ""
+    return f"~{entry['expected_minutes']:.3g} min, F1 {entry['expected_f1']:.2f}{by} on {machine}"
 
 
 def draw(panel_name: str, context) -> list:

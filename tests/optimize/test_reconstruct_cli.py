@@ -141,6 +141,21 @@ def test_time_budget_picks_the_calibrated_preset_and_stops_on_time(capture, tmp_
     assert 60 * minutes - 1 <= report["timings"]["total"] <= 60 * minutes + 8  # the step in flight, then the result
 
 
+def test_min_levels_holds_the_level_convergence_test(capture, tmp_path):
+    # every level at one image size and a tolerance no level can meet: without min_levels the
+    # second level ends refinement ("converged"); Final's min_levels keeps it going
+    run = tmp_path / "run"
+    settings = json.dumps({"level_tolerance": 1.0, "min_levels": 3})
+    proc = run_cli("reconstruct", capture, "--out", run, "--init", "sphere", *FAST, "--max-size", 20,
+                   "--max-levels", 5, "--level-iterations", 20, env={"SFT_RECONSTRUCT_SETTINGS": settings},
+                   timeout=300)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    report = json.loads((run / "report.json").read_text())
+    assert report["settings"]["min_levels"] == 3 and report["levels_ended"] == "converged"
+    assert [level["level"] for level in report["levels"]] == [0, 1, 2]
+    assert ReconstructConfig(**PRESETS["final"]).min_levels > PRESETS["balanced"]["max_levels"]
+
+
 def test_stop_file_cancels_with_an_intact_snapshot_and_resume_finishes(capture, tmp_path):
     run = tmp_path / "run"
     proc = start(capture, run, "--iterations", 60)
