@@ -62,7 +62,7 @@ def entry(row: dict) -> dict:
            "f1_005": None if row.get("f1_005") is None else round(row["f1_005"] / 100, 4),
            "novel_psnr": row.get("novel_psnr"), "relit_psnr": row.get("relit_psnr"),
            "peak_memory_mb": row.get("peak_mb"), "load_average": [row.get("load_before"), row.get("load_after")],
-           "runs": row.get("repeats", 1), "settings": row["knobs"],
+           "runs": row.get("repeats", 1), "settings": row["knobs"], "code": row.get("code"),
            # the run's levels and steps: optimize/plan.py predicts other captures' times from them
            "iterations": row.get("iterations"), "levels": row.get("levels")}
     return out
@@ -129,7 +129,9 @@ def _keep(new: dict, old: dict | None) -> dict:
     kept = {n: e for n, e in ((old or {}).get("presets") or {}).items() if n not in new["presets"]}
     if not kept:
         return new
-    codes = {c.strip() for doc in (new, old) for c in str(doc.get("code") or "").split(",") if c.strip()}
+    # a kept entry names its own commit; one written before entries did stands for the old file's
+    sources = [new.get("code")] + [e.get("code") or old.get("code") for e in kept.values()]
+    codes = {c.strip() for code in sources for c in str(code or "").split(",") if c.strip()}
     return {**new, "presets": {n: new["presets"].get(n) or kept[n] for n in TARGETS if n in new["presets"] or n in kept},
             "code": ", ".join(sorted(codes)), "measured": max(new["measured"], old.get("measured") or "")}
 

@@ -138,6 +138,9 @@ def test_one_kind_is_calibrated_at_a_time_and_the_others_are_kept():
     assert list(again["presets"]) == ["draft", "balanced", "final"] and again["kinds"]["point"]["code"] == "abc, ghi"
     assert again["presets"]["final"]["expected_minutes"] == round(950 / 60, 2)
     assert again["presets"]["draft"] == point["presets"]["draft"]
+    # once each entry names its commit, a preset measured again drops the commit it replaces
+    final = calibration(_rows("dragon", "constant", "jkl", (("final", 900, 98.6),)), machine, previous=again)
+    assert final["code"] == "abc, jkl" and final["presets"]["final"]["code"] == "jkl"
     # a file written before kinds existed is the point-lit kind's
     legacy = {k: v for k, v in point.items() if k != "kinds"}
     assert calibration(env, machine, previous=legacy)["kinds"]["point"] == point["kinds"]["point"]
