@@ -16,8 +16,9 @@ pay), which a capture lit by an environment map is promised and its time budget 
 (optimize/presets.py, ``calibrated``). A kind that ``--scenes`` leaves out keeps its entries
 from the file being replaced, and so does a preset that ``--presets`` leaves out. Each scene is
 fitted with the material model its truth calls for (``MATERIALS``: one constant glossy
-material for both). ``expected_f1`` is F1@0.01 as a fraction (0.9 = 90 %). ``--from-results FILE`` writes the file from a sweep's
-``results.jsonl`` instead of running anything; then each preset also gets
+material for both). ``expected_f1`` is F1@0.01 as a fraction (0.9 = 90 %).
+``--from-results FILE`` writes the file from a sweep's ``results.jsonl`` instead of running
+anything; then each preset also gets
 ``recommended_overrides`` (ReconstructConfig fields, as in ``optimize/presets.py``): the
 settings of the most accurate swept run that fits the preset's time target, when it beats the
 preset by more than ``--margin`` F1 points. Each entry records the preset's ``overrides`` as
@@ -132,7 +133,8 @@ def _keep(new: dict, old: dict | None) -> dict:
     # a kept entry names its own commit; one written before entries did stands for the old file's
     sources = [new.get("code")] + [e.get("code") or old.get("code") for e in kept.values()]
     codes = {c.strip() for code in sources for c in str(code or "").split(",") if c.strip()}
-    return {**new, "presets": {n: new["presets"].get(n) or kept[n] for n in TARGETS if n in new["presets"] or n in kept},
+    merged = {n: new["presets"].get(n) or kept[n] for n in TARGETS if n in new["presets"] or n in kept}
+    return {**new, "presets": merged,
             "code": ", ".join(sorted(codes)), "measured": max(new["measured"], old.get("measured") or "")}
 
 

@@ -222,7 +222,8 @@ def _preset_note(preset: str, expected: dict, kind: str) -> str | None:
     """What the ``preset`` event warns of: no calibration for the kind, or a preset that a
     cheaper one matched on the kind's calibration scene."""
     if not expected:
-        return f"no calibration scene lit as this capture is ({kind}); the time comes from this capture's measured steps"
+        return (f"no calibration scene lit as this capture is ({kind}); the time comes from this capture's "
+                "measured steps")
     if expected.get("dominated_by"):
         return (f"{preset} was no more accurate than {expected['dominated_by']} on the calibration scene lit as "
                 f"this capture is ({kind}), in more time")
