@@ -85,7 +85,7 @@ JOBS = (
         *_run_and_score("{out}/plain", "{out}/plain-estimate", "--lighting", "estimate", "--time-budget", "10"))),
     Job("captures", "Real captures and the synthetic comparison (2026-11-27)", 0.6, (("bench", "captures", "--out", "{out}", "--minutes", "10"),)),
     Job("realworld", "Real-world captures", 0.6, (("bench", "realworld", "--out", "{out}"),)),
-    Job("sfm", "Real-world captures", 0.1, (("bench", "sfm", "--out", "{out}"),)),
+    Job("sfm", "Real-world captures", 0.1, (("bench", "sfm", "--out", "{out}/sfm.json"),)),
     Job("stability", "Numerical stability", 0.3, (("bench", "stability", "--quick", "--out", "{out}"),)),
     Job("sweep", "Accuracy versus time: the sweep and the presets", 3.4,
         (("bench", "sweep", "--grid", "quick", "--out", "{out}", "--report", "{report}"),)),

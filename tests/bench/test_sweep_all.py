@@ -23,6 +23,15 @@ def test_every_job_belongs_to_a_section_and_every_documented_benchmark_has_a_job
     assert documented and documented <= run, documented - run
 
 
+def test_a_bench_that_writes_one_file_is_not_pointed_at_its_job_folder():
+    # the job folder holds the commands' logs: a JSON report written over it fails the job
+    files = {"sfm", "hdr"}  # their --out is a JSON file, the others' a work folder
+    for job in _all.JOBS:
+        for command in job.commands:
+            if command[0] == "bench" and command[1] in files:
+                assert command[command.index("--out") + 1] != "{out}", (job.name, command)
+
+
 def test_list_prints_the_jobs_and_runs_nothing(tmp_path):
     proc = run_cli("bench", "sweep", "--all", "--list", "--out", tmp_path / "all", timeout=120)
     assert proc.returncode == 0, proc.stderr[-2000:]
