@@ -14,7 +14,8 @@ from . import interpreter
 PRESETS = (
     ("draft", "Draft", "Coarse mesh and few iterations: a quick look"),
     ("balanced", "Balanced", "Six refinement levels: the default trade-off between time and accuracy"),
-    ("final", "Final", "Refinement levels until the surface stops improving: the most accurate, slowest"),
+    ("final", "Final", "At least seven refinement levels, then until the surface stops improving: the slowest; "
+                       "the most accurate where the views show finer detail (the box below says where it gains)"),
 )
 
 
