@@ -57,7 +57,7 @@ JOBS = (
         (("bench", "material", "--table", "--rerun", "--effects", "auto", "--out", "{out}"),)),
     Job("geometry", "Geometry benchmark", 0.6, (("bench", "geometry", "--out", "{out}"),)),
     Job("effects", "Effects: simulate only what a scene calls for", 0.7, (("bench", "effects", "--out", "{out}"),)),
-    Job("hdr", "HDR-lit step cost", 0.5, (
+    Job("hdr", "HDR-lit step cost", 0.1, (
         ("bench", "hdr", "--steps", "6", "--configs", "sppi=0;sppi=12,guiding=none", "--out", "{out}/arma"),
         ("bench", "hdr", "--mesh", "bob", "--envmap", "sunset", "--steps", "6", "--configs",
          "sppi=0;sppi=12,guiding=none", "--out", "{out}/bob"),
@@ -85,8 +85,8 @@ JOBS = (
         *_run_and_score("{out}/plain", "{out}/plain-estimate", "--lighting", "estimate", "--time-budget", "10"))),
     Job("captures", "Real captures and the synthetic comparison (2026-11-27)", 0.6, (("bench", "captures", "--out", "{out}", "--minutes", "10"),)),
     Job("realworld", "Real-world captures", 0.6, (("bench", "realworld", "--out", "{out}"),)),
-    Job("sfm", "Real-world captures", 0.1, (("bench", "sfm", "--out", "{out}/sfm.json"),)),
-    Job("stability", "Numerical stability", 0.3, (("bench", "stability", "--quick", "--out", "{out}"),)),
+    Job("sfm", "Real-world captures", 0.25, (("bench", "sfm", "--out", "{out}/sfm.json"),)),
+    Job("stability", "Numerical stability", 0.1, (("bench", "stability", "--quick", "--out", "{out}"),)),
     Job("sweep", "Accuracy versus time: the sweep and the presets", 3.4,
         (("bench", "sweep", "--grid", "quick", "--out", "{out}", "--report", "{report}"),)),
     Job("calibrate", "Accuracy versus time: the sweep and the presets", 1.8,
