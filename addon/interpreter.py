@@ -34,8 +34,14 @@ def default_python(package_dir: Path = PACKAGE_DIR, installed: Path | None = Non
 
 
 def has_interpreter(package_dir: Path = PACKAGE_DIR, installed: Path | None = None) -> bool:
-    """Whether a backend interpreter was set up (developer .venv, Install Backend or $SFT_PYTHON)."""
-    return default_python(package_dir, installed) not in (shutil.which("python3"), shutil.which("python"), "python3")
+    """Whether a backend interpreter was set up (developer .venv, Install Backend or $SFT_PYTHON).
+    Asked of each source, not of default_python's answer: with the developer .venv activated,
+    its interpreter is also the PATH's python3."""
+    if any((package_dir / rel).is_file() for rel in (".venv/bin/python", ".venv/Scripts/python.exe")):
+        return True
+    if installed is not None and installed_python(installed) is not None:
+        return True
+    return bool(os.environ.get("SFT_PYTHON"))
 
 
 def install_command(venv: Path, base: str = sys.executable, package_dir: Path = PACKAGE_DIR) -> list[str]:

@@ -276,6 +276,12 @@ def test_default_python_order(tmp_path, monkeypatch):
     assert interpreter.default_python(tmp_path) == str(venv / "python")
     monkeypatch.delenv("SFT_PYTHON")
     assert interpreter.default_python(tmp_path / "elsewhere") and "SFT" not in interpreter.default_python(tmp_path / "x")
+    # a developer .venv counts as set up even when it is activated (its python is the PATH's)
+    monkeypatch.setenv("PATH", str(venv) + os.pathsep + os.environ.get("PATH", ""))
+    (venv / "python3").write_text("")
+    for exe in (venv / "python", venv / "python3"):
+        exe.chmod(0o755)
+    assert interpreter.has_interpreter(tmp_path) and not interpreter.has_interpreter(tmp_path / "x")
 
 
 def test_backend_command_discovery():
