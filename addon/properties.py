@@ -5,8 +5,9 @@ from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, Po
 
 from .presets import PRESETS
 
-QUALITY = (("auto", "Fit Budget", "The most accurate preset whose calibrated time fits the time budget "
-            "(Balanced when the budget is 0)"), *PRESETS)
+QUALITY = (("auto", "Fit Budget", "The most accurate preset whose calibrated time fits the time budget, or the "
+            "next one, cut at the budget, when the budget is three times that preset's time (Balanced when the "
+            "budget is 0)"), *PRESETS)
 MATERIALS = (
     ("FULL", "Full", "Spatially varying diffuse albedo, specular and roughness as mesh colors, fitted in stages "
      "(constants, diffuse, specular); exported with result.glb"),

@@ -21,7 +21,7 @@ from pathlib import Path
 from ..lighting.setup import HELP as LIGHTING_HELP, MODES as LIGHTING_MODES
 from ..optimize import job
 from ..optimize.config import STAGED_FACE_GROWTH, ReconstructConfig
-from ..optimize.presets import DEFAULT, PRESETS, calibrated
+from ..optimize.presets import DEFAULT, FILL_FACTOR, PRESETS, calibrated
 from ..video.inputs import add_lighting_arguments
 
 INIT_HELP = "carve (visual hull; default with masks), sphere, box, spheres (sphere cloud), points (SfM + Poisson), or a mesh file"
@@ -58,7 +58,8 @@ def add_arguments(parser):
     parser.add_argument("--out", required=True, type=Path, metavar="RUN", help="run folder")
     parser.add_argument("--preset", choices=sorted(PRESETS),
                         help=f"quality preset (default {DEFAULT}; with --time-budget, the most accurate preset whose "
-                             f"calibrated time fits it); the options below override it. {_calibration_help()}")
+                             f"calibrated time fits it, or the next one, cut at the budget, when the budget is "
+                             f"{FILL_FACTOR:g}x that time); the options below override it. {_calibration_help()}")
     parser.add_argument("--init", default=None, help=INIT_HELP)
     parser.add_argument("--time-budget", type=float, metavar="MINUTES",
                         help="wall-clock budget of the whole run: it stops then with the best mesh so far")

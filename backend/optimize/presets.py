@@ -22,6 +22,8 @@ PRESETS = {
     "final": {"min_levels": 7},
 }
 DEFAULT = "balanced"
+# a time budget at least this many times the best fitting preset's time runs the next one
+FILL_FACTOR = 3.0
 CALIBRATION_FILE = Path(__file__).resolve().parents[1] / "presets.json"
 
 
@@ -68,7 +70,9 @@ def preset_for_budget(minutes: float, path: Path = CALIBRATION_FILE, default: st
                       kind: str = "point") -> str:
     """The most accurate calibrated preset whose expected time fits ``minutes``, by the
     calibration of ``kind`` (the capture's lighting; the point-lit one where that kind is
-    not calibrated).
+    not calibrated), or the next costlier one, cut by the budget, when ``minutes`` is at
+    least ``FILL_FACTOR`` times that preset's time. A preset marked ``dominated_by`` is
+    passed by.
 
     When none fits, the fastest calibrated preset (it will run against the budget); without a
     calibration file (or with no usable entries), ``default``."""
@@ -78,6 +82,13 @@ def preset_for_budget(minutes: float, path: Path = CALIBRATION_FILE, default: st
     # a preset a cheaper one dominates on the kind's scene buys nothing there
     entries = {n: p for n, p in entries.items() if not p.get("dominated_by")} or entries
     fits = [n for n, p in entries.items() if p["expected_minutes"] <= minutes]
-    if fits:
-        return max(fits, key=lambda n: (entries[n].get("expected_f1") or 0.0, -entries[n]["expected_minutes"]))
-    return min(entries, key=lambda n: entries[n]["expected_minutes"])
+    if not fits:
+        return min(entries, key=lambda n: entries[n]["expected_minutes"])
+    best = max(fits, key=lambda n: (entries[n].get("expected_f1") or 0.0, -entries[n]["expected_minutes"]))
+    # a budget the best fit would mostly leave unused is better spent on the next preset, cut
+    # at the budget (measured on both calibration scenes: docs/results.md, "What the budget
+    # picker left on the table")
+    costlier = [n for n, p in entries.items() if p["expected_minutes"] > entries[best]["expected_minutes"]]
+    if costlier and minutes >= FILL_FACTOR * entries[best]["expected_minutes"]:
+        return min(costlier, key=lambda n: entries[n]["expected_minutes"])
+    return best
