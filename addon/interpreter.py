@@ -18,12 +18,13 @@ from pathlib import Path
 from .install_backend import installed_python
 
 PACKAGE_DIR = Path(__file__).resolve().parent.parent  # holds addon/ and backend/
+VENV_PYTHONS = (".venv/bin/python", ".venv/Scripts/python.exe")  # a developer checkout's interpreter
 
 
 def default_python(package_dir: Path = PACKAGE_DIR, installed: Path | None = None) -> str:
     """``<package>/.venv``'s interpreter (a developer checkout), else the one Install Backend
     made (``installed``: its environment folder), else ``$SFT_PYTHON``, else ``python3``."""
-    for rel in (".venv/bin/python", ".venv/Scripts/python.exe"):
+    for rel in VENV_PYTHONS:
         if (package_dir / rel).is_file():
             return str(package_dir / rel)
     if installed is not None and (python := installed_python(installed)) is not None:
@@ -37,7 +38,7 @@ def has_interpreter(package_dir: Path = PACKAGE_DIR, installed: Path | None = No
     """Whether a backend interpreter was set up (developer .venv, Install Backend or $SFT_PYTHON).
     Asked of each source, not of default_python's answer: with the developer .venv activated,
     its interpreter is also the PATH's python3."""
-    if any((package_dir / rel).is_file() for rel in (".venv/bin/python", ".venv/Scripts/python.exe")):
+    if any((package_dir / rel).is_file() for rel in VENV_PYTHONS):
         return True
     if installed is not None and installed_python(installed) is not None:
         return True
