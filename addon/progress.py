@@ -192,9 +192,13 @@ def effects_summary(enabled: dict) -> str:
 
 
 def shadow_samples_summary(event: dict) -> str:
-    """One line from a ``shadow_samples`` event, e.g. 'shadows: 7 samples/px, 1.8x a step'."""
-    ratio = event.get("expected_ratio")
-    cost = f", {float(ratio):.1f}x a step" if ratio is not None else ""
+    """One line from a ``shadow_samples`` event, e.g. 'shadows: 7 samples/px, 1.8x a step'
+    (predicted), or '..., 1.8x a step, measured' once the level has timed its steps at that count."""
+    achieved, expected = event.get("achieved_ratio"), event.get("expected_ratio")
+    if event.get("checked") and achieved is not None:
+        cost = f", {float(achieved):.1f}x a step, measured"
+    else:
+        cost = f", {float(expected):.1f}x a step" if expected is not None else ""
     return f"shadows: {event.get('chosen')} samples/px{cost}"
 
 

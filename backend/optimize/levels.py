@@ -182,6 +182,8 @@ class LevelRun:
                 if run.accuracy.due():  # held-out views scored every accuracy_every_s (--track-accuracy)
                     run.track("every", Mesh(vertices, s.mesh.faces))
         finally:
+            if shadows.chosen is not None:  # what the kept count cost over all of the level's steps
+                self.shadows = shadows.to_json()
             # keep the best surface found so far, also when cancelled
             s.mesh = Mesh(self.best[0], s.mesh.faces)
             run.material.load_parameters(self.best[1])

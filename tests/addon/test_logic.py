@@ -309,6 +309,10 @@ def test_effects_event_is_summarised_for_the_panel():
     state.update({"event": "shadow_samples", "level": 1, "full": 12, "chosen": 7, "measured_ratio": 2.38,
                   "expected_ratio": 1.804})
     assert state.shadow_samples == "shadows: 7 samples/px, 1.8x a step"
+    # the level's own steps at that count, timed: the measured ratio replaces the prediction
+    state.update({"event": "shadow_samples", "level": 1, "full": 12, "chosen": 7, "measured_ratio": 2.38,
+                  "expected_ratio": 1.804, "checked": True, "achieved_ratio": 1.93})
+    assert state.shadow_samples == "shadows: 7 samples/px, 1.9x a step, measured"
     state.update({"event": "effects", "enabled": {"max_depth": 3, "shadows": False, "specular": True}})
     assert state.shadow_samples == ""  # shadow gradients off: no cost line
     state.update({"event": "stiffness", "lambda": 20.0, "clip": 99.5, "chroma_spread": 0.15,
