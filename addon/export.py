@@ -1,19 +1,86 @@
 """glTF export of the reconstruction with baked textures.
 
-A temporary copy of the object gets a triangle-atlas UV map (two triangles per square
-cell, kept apart by a texel gap); Cycles bakes its albedo (the colour attribute through
-the material) and roughness into images, and Blender's glTF exporter writes the copy with
-a Principled material that reads those textures (or, without baking, the colour
-attribute as vertex colours). The user's scene is left as it was."""
+When the object still shows a finished run's final snapshot unchanged, the export is the
+run's own ``result.glb``: the optimised mesh (the display mesh is that mesh split for its
+mesh colors, 16 times the faces) with textures evaluated exactly from the material (albedo,
+roughness and specular), written again with the object's name and world transform.
 
+Otherwise (the object was edited, or the run stopped before its end) a temporary copy of
+the object gets a triangle-atlas UV map (two triangles per square cell, kept apart by a
+texel gap); Cycles bakes its albedo (the colour attribute through the material) and
+roughness into images, and Blender's glTF exporter writes the copy with a Principled
+material that reads those textures (or, without baking, the colour attribute as vertex
+colours). The user's scene is left as it was."""
+
+import json
 import math
+import os
+import struct
 from pathlib import Path
 
 import bpy
 import numpy as np
 
+from .errors import AddonInputError
+from .ply import read_display_mesh
 from .preview import cycles_device
-from .scene_mesh import COLOR_ATTRIBUTE, reconstruction_material
+from .scene_mesh import COLOR_ATTRIBUTE, SOURCE_PROPERTY, reconstruction_material, shows
+
+# Blender's Z-up world to glTF's Y-up, as the backend writes result.glb
+Z_UP_TO_Y_UP = np.array([[1.0, 0, 0, 0], [0, 0, 1.0, 0], [0, -1.0, 0, 0], [0, 0, 0, 1.0]])
+
+
+def run_result(obj: bpy.types.Object) -> Path | None:
+    """The run's ``result.glb`` when ``obj`` shows that run's final snapshot unchanged, else None."""
+    source = obj.get(SOURCE_PROPERTY)
+    if not source:
+        return None
+    snapshot = Path(source)
+    run = snapshot.parent.parent  # RUN/snapshots/N.ply
+    glb = run / "result.glb"
+    try:
+        doc = json.loads((run / "snapshot.json").read_text())
+        final = doc.get("stage") == "done" and (run / doc["mesh"]).resolve() == snapshot.resolve()
+        # the run writes result.glb after its final snapshot; an older one is another run's
+        if not final or not glb.is_file() or glb.stat().st_mtime < snapshot.stat().st_mtime - 1:
+            return None
+        return glb if shows(obj.data, read_display_mesh(snapshot)) else None
+    except (OSError, ValueError, KeyError, TypeError, AttributeError, AddonInputError):
+        return None
+
+
+def _png_size(data: bytes) -> int:
+    return struct.unpack_from(">I", data, 16)[0] if data[:8] == b"\x89PNG\r\n\x1a\n" else 0
+
+
+def write_run_glb(source: Path, path: Path, name: str, matrix_world) -> dict:
+    """Write the run's ``source`` .glb to ``path`` with its node and mesh named ``name`` and
+    the node placed by ``matrix_world`` (Blender's, turned into glTF's Y-up); returns what
+    was written. The file appears whole or not at all."""
+    data = source.read_bytes()
+    magic, version, total = struct.unpack_from("<4sII", data, 0)
+    n, kind = struct.unpack_from("<I4s", data, 12)
+    if magic != b"glTF" or version != 2 or total != len(data) or kind != b"JSON":
+        raise AddonInputError(f"{source}: not a glTF 2.0 binary; run Reconstruct again")
+    gltf = json.loads(data[20:20 + n])
+    node, mesh = gltf["nodes"][0], gltf["meshes"][0]
+    node["name"] = mesh["name"] = name
+    m = np.array(matrix_world, dtype=np.float64)
+    if not np.allclose(m, np.eye(4)):
+        node["matrix"] = (Z_UP_TO_Y_UP @ m @ Z_UP_TO_Y_UP.T).T.ravel().tolist()  # column-major
+    text = json.dumps(gltf, separators=(",", ":")).encode()
+    text += b" " * (-len(text) % 4)
+    rest = data[20 + n:]
+    out = struct.pack("<4sII", b"glTF", 2, 20 + len(text) + len(rest)) + struct.pack("<I4s", len(text), b"JSON") + text + rest
+    path.parent.mkdir(parents=True, exist_ok=True)
+    partial = path.with_name(f".{path.name}.partial")
+    partial.write_bytes(out)
+    os.replace(partial, path)
+    binary = rest[8:]
+    sizes = [_png_size(binary[v.get("byteOffset", 0):]) for v in (gltf["bufferViews"][i["bufferView"]]
+                                                                 for i in gltf.get("images", []))]
+    faces = gltf["accessors"][gltf["meshes"][0]["primitives"][0]["indices"]]["count"] // 3
+    return {"path": str(path), "faces": faces, "texture_size": max(sizes, default=0), "source": "run"}
 
 
 def atlas_uvs(n_faces: int, size: int) -> np.ndarray:
@@ -126,14 +193,19 @@ def _export_selected(context, obj: bpy.types.Object, path: Path) -> None:
 
 def export_gltf(context, obj: bpy.types.Object, path: Path, bake: bool = True, size: int = 0,
                 samples: int = 1, device: str = "AUTO") -> dict:
-    """Write ``obj`` as binary glTF; returns what was written."""
+    """Write ``obj`` as binary glTF; returns what was written (``source``: ``run`` for the
+    run's own result, ``scene`` for what was baked or written from the scene)."""
+    if bake and not size:
+        result = run_result(obj)
+        if result is not None:
+            return write_run_glb(result, path, obj.name, obj.matrix_world)
     scene = bpy.data.scenes.new(".sft_export")  # for baking with Cycles
     mesh = obj.data.copy()
     copy = bpy.data.objects.new(".sft_export", mesh)
     copy.matrix_world = obj.matrix_world
     scene.collection.objects.link(copy)
     made_images, made_materials = [], []
-    info = {"path": str(path), "faces": len(mesh.polygons), "texture_size": 0}
+    info = {"path": str(path), "faces": len(mesh.polygons), "texture_size": 0, "source": "scene"}
     name = obj.name
     try:
         color = rough = None

@@ -117,7 +117,9 @@ def show_snapshot(context, path: Path, object_name: str = scene_mesh.OBJECT_NAME
         mesh = read_display_mesh(path)
     except AddonInputError:
         return False
-    scene_mesh.apply_display_mesh(scene_mesh.reconstruction_object(context, object_name), mesh)
+    obj = scene_mesh.reconstruction_object(context, object_name)
+    scene_mesh.apply_display_mesh(obj, mesh)
+    obj[scene_mesh.SOURCE_PROPERTY] = str(Path(path).resolve())
     return True
 
 

@@ -12,6 +12,7 @@ import numpy as np
 from .ply import DisplayMesh
 
 OBJECT_NAME = "Reconstruction"
+SOURCE_PROPERTY = "sft_snapshot"  # the snapshot file an object shows (for Export glTF)
 MATERIAL_NAME = "SfT Reconstruction"
 COLOR_ATTRIBUTE = "albedo"
 NORMAL_ATTRIBUTE = "custom_normal"
@@ -112,6 +113,31 @@ def apply_display_mesh(obj: bpy.types.Object, dm: DisplayMesh) -> None:
     elif mesh.attributes.get(NORMAL_ATTRIBUTE) is not None:  # Blender's own normals again
         mesh.attributes.remove(mesh.attributes[NORMAL_ATTRIBUTE])
     mesh.update(calc_edges=topology_changed)
+
+
+def _read_point(mesh, name: str, kind: str, width: int) -> np.ndarray | None:
+    """A point attribute's values, (V, width) float32, or None when it is missing or of
+    another kind."""
+    attr = mesh.attributes.get(name)
+    if attr is None or attr.data_type != kind or attr.domain != "POINT":
+        return None
+    values = np.empty(len(mesh.vertices) * width, np.float32)
+    attr.data.foreach_get({"FLOAT": "value", "FLOAT_COLOR": "color", "FLOAT_VECTOR": "vector"}[kind], values)
+    return values.reshape(-1, width)
+
+
+def shows(mesh: bpy.types.Mesh, dm: DisplayMesh) -> bool:
+    """True when ``mesh`` holds exactly ``dm``: its triangles, positions, albedo and float
+    attributes (what an edit in Blender would change)."""
+    if not _same_topology(mesh, dm):
+        return False
+    pairs = [(_read_point(mesh, "position", "FLOAT_VECTOR", 3), dm.vertices)]
+    if dm.colors is not None:
+        rgba = _read_point(mesh, COLOR_ATTRIBUTE, "FLOAT_COLOR", 4)
+        pairs.append((None if rgba is None else rgba[:, :3], dm.colors))
+    for name, values in dm.attributes.items():
+        pairs.append((_read_point(mesh, name, "FLOAT", 1), np.reshape(values, (-1, 1))))
+    return all(have is not None and np.array_equal(have, np.asarray(want, np.float32)) for have, want in pairs)
 
 
 def export_object_mesh(context, obj, path) -> int:

@@ -10,8 +10,8 @@ from .common import Busy, abspath, fail, poll_reconstruction
 
 
 class SFT_OT_export_gltf(bpy.types.Operator, ExportHelper):
-    """Export the reconstruction as glTF: albedo and roughness baked into textures (or kept
-    as vertex colours)"""
+    """Export the reconstruction as glTF: the run's optimised mesh with its exact textures while
+    the object shows the run's result unchanged, else the object baked (or as vertex colours)"""
 
     bl_idname = "sft.export_gltf"
     bl_label = "Export glTF"
@@ -22,7 +22,8 @@ class SFT_OT_export_gltf(bpy.types.Operator, ExportHelper):
     bake: BoolProperty(name="Bake Textures", default=True,
                        description="Bake albedo and roughness into textures (else vertex colours)")
     texture_size: IntProperty(name="Texture Size", default=0, min=0, max=8192,
-                              description="Baked texture width and height (0: automatic)")
+                              description="Baked texture width and height (0: automatic, and the run's own "
+                                          "textures while the object shows its result unchanged)")
 
     @classmethod
     def poll(cls, context):
@@ -44,7 +45,10 @@ class SFT_OT_export_gltf(bpy.types.Operator, ExportHelper):
                                           device=context.scene.sft.device)
         except AddonInputError as err:
             return fail(self, err)
-        textures = f", {info['texture_size']} px textures" if info["texture_size"] else ", vertex colours"
+        if info["source"] == "run":
+            textures = f", the run's {info['texture_size']} px textures (albedo, roughness, specular)"
+        else:
+            textures = f", {info['texture_size']} px baked textures" if info["texture_size"] else ", vertex colours"
         self.report({"INFO"}, f"exported {info['faces']} faces{textures}: {info['path']}")
         return {"FINISHED"}
 

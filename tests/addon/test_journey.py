@@ -106,12 +106,31 @@ def test_the_whole_journey_with_the_panels_defaults(context, extension, orbit, t
 
     glb = tmp_path / "journey.glb"
     assert bpy.ops.sft.export_gltf(filepath=str(glb)) == {"FINISHED"}
-    assert "exported" in _reports(capfd)
+    assert "the run's" in _reports(capfd)
     gltf = _glb_json(glb)
     assert "KHR_materials_specular" in gltf.get("extensionsUsed", []), "the export dropped the specular lobe"
     material = gltf["materials"][0]
     assert material["pbrMetallicRoughness"]["baseColorTexture"] is not None
     assert material["extensions"]["KHR_materials_specular"]["specularColorFactor"][0] > 0
+    # the object shows the run's result unchanged: the export is the optimised mesh with its
+    # exact textures (the display mesh splits each face for its mesh colors), named as the object
+    result = _glb_json(run / "result.glb")
+    faces = result["accessors"][result["meshes"][0]["primitives"][0]["indices"]]["count"] // 3
+    assert faces == json.loads((run / "report.json").read_text())["result"]["faces"] < len(obj.data.polygons)
+    assert glb.read_bytes().endswith((run / "result.glb").read_bytes()[-1000:])  # the same binary chunk
+    assert gltf["nodes"][0]["name"] == "Reconstruction" and "matrix" not in gltf["nodes"][0]
+    # moved in the scene: the node carries the move, in glTF's Y-up axes
+    obj.location = (0.5, 2.0, -1.0)
+    bpy.context.view_layer.update()
+    assert bpy.ops.sft.export_gltf(filepath=str(glb)) == {"FINISHED"}
+    matrix = np.array(_glb_json(glb)["nodes"][0]["matrix"]).reshape(4, 4).T
+    assert np.allclose(matrix[:3, 3], (0.5, -1.0, -2.0)) and np.allclose(matrix[:3, :3], np.eye(3))
+    # edited in Blender: what the scene shows is baked instead
+    obj.data.vertices[0].co.z += 0.01
+    assert bpy.ops.sft.export_gltf(filepath=str(glb)) == {"FINISHED"}
+    assert "baked textures" in _reports(capfd)
+    edited = _glb_json(glb)
+    assert edited["accessors"][edited["meshes"][0]["primitives"][0]["indices"]]["count"] // 3 == len(obj.data.polygons)
 
 
 def test_the_headless_script_runs_the_same_journey(orbit, tmp_path):
