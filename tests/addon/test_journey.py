@@ -113,10 +113,11 @@ def test_the_whole_journey_with_the_panels_defaults(context, extension, orbit, t
     assert material["pbrMetallicRoughness"]["baseColorTexture"] is not None
     assert material["extensions"]["KHR_materials_specular"]["specularColorFactor"][0] > 0
     # the object shows the run's result unchanged: the export is the optimised mesh with its
-    # exact textures (the display mesh splits each face for its mesh colors), named as the object
+    # exact textures (at resolution r > 1 the display mesh splits each face for its mesh colors),
+    # named as the object
     result = _glb_json(run / "result.glb")
     faces = result["accessors"][result["meshes"][0]["primitives"][0]["indices"]]["count"] // 3
-    assert faces == json.loads((run / "report.json").read_text())["result"]["faces"] < len(obj.data.polygons)
+    assert faces == json.loads((run / "report.json").read_text())["result"]["faces"] <= len(obj.data.polygons)
     assert glb.read_bytes().endswith((run / "result.glb").read_bytes()[-1000:])  # the same binary chunk
     assert gltf["nodes"][0]["name"] == "Reconstruction" and "matrix" not in gltf["nodes"][0]
     # moved in the scene: the node carries the move, in glTF's Y-up axes
