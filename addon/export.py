@@ -2,7 +2,7 @@
 
 When the object still shows a finished run's final snapshot unchanged, the export is the
 run's own ``result.glb``: the optimised mesh (the display mesh is that mesh split for its
-mesh colors, 16 times the faces) with textures evaluated exactly from the material (albedo,
+mesh colors, r² times the faces at resolution r) with textures evaluated exactly from the material (albedo,
 roughness and specular), written again with the object's name and world transform.
 
 Otherwise (the object was edited, or the run stopped before its end) a temporary copy of
@@ -21,7 +21,7 @@ from pathlib import Path
 import bpy
 import numpy as np
 
-from .errors import AddonInputError
+from .errors import AddonInputError, require
 from .ply import read_display_mesh
 from .preview import cycles_device
 from .scene_mesh import COLOR_ATTRIBUTE, SOURCE_PROPERTY, reconstruction_material, shows
@@ -60,8 +60,8 @@ def write_run_glb(source: Path, path: Path, name: str, matrix_world) -> dict:
     data = source.read_bytes()
     magic, version, total = struct.unpack_from("<4sII", data, 0)
     n, kind = struct.unpack_from("<I4s", data, 12)
-    if magic != b"glTF" or version != 2 or total != len(data) or kind != b"JSON":
-        raise AddonInputError(f"{source}: not a glTF 2.0 binary; run Reconstruct again")
+    require(magic == b"glTF" and version == 2 and total == len(data) and kind == b"JSON", source,
+            "not a glTF 2.0 binary", "run Reconstruct again")
     gltf = json.loads(data[20:20 + n])
     node, mesh = gltf["nodes"][0], gltf["meshes"][0]
     node["name"] = mesh["name"] = name
@@ -72,10 +72,14 @@ def write_run_glb(source: Path, path: Path, name: str, matrix_world) -> dict:
     text += b" " * (-len(text) % 4)
     rest = data[20 + n:]
     out = struct.pack("<4sII", b"glTF", 2, 20 + len(text) + len(rest)) + struct.pack("<I4s", len(text), b"JSON") + text + rest
-    path.parent.mkdir(parents=True, exist_ok=True)
     partial = path.with_name(f".{path.name}.partial")
-    partial.write_bytes(out)
-    os.replace(partial, path)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        partial.write_bytes(out)
+        os.replace(partial, path)
+    except OSError as err:
+        partial.unlink(missing_ok=True)
+        raise AddonInputError(path, f"cannot write the file ({err.strerror})", "choose another folder") from None
     binary = rest[8:]
     sizes = [_png_size(binary[v.get("byteOffset", 0):]) for v in (gltf["bufferViews"][i["bufferView"]]
                                                                  for i in gltf.get("images", []))]

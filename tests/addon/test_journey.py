@@ -120,6 +120,11 @@ def test_the_whole_journey_with_the_panels_defaults(context, extension, orbit, t
     assert faces == json.loads((run / "report.json").read_text())["result"]["faces"] <= len(obj.data.polygons)
     assert glb.read_bytes().endswith((run / "result.glb").read_bytes()[-1000:])  # the same binary chunk
     assert gltf["nodes"][0]["name"] == "Reconstruction" and "matrix" not in gltf["nodes"][0]
+    blocked = tmp_path / "a_file"
+    blocked.write_text("")  # a folder that is a file: one-line error, nothing written
+    with pytest.raises(RuntimeError, match="cannot write the file"):
+        bpy.ops.sft.export_gltf(filepath=str(blocked / "x.glb"))
+    assert blocked.read_text() == ""
     # moved in the scene: the node carries the move, in glTF's Y-up axes
     obj.location = (0.5, 2.0, -1.0)
     bpy.context.view_layer.update()
