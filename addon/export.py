@@ -12,6 +12,7 @@ roughness into images, and Blender's glTF exporter writes the copy with a Princi
 material that reads those textures (or, without baking, the colour attribute as vertex
 colours). The user's scene is left as it was."""
 
+import contextlib
 import json
 import math
 import os
@@ -78,7 +79,8 @@ def write_run_glb(source: Path, path: Path, name: str, matrix_world) -> dict:
         partial.write_bytes(out)
         os.replace(partial, path)
     except OSError as err:
-        partial.unlink(missing_ok=True)
+        with contextlib.suppress(OSError):  # nothing half-written stays behind
+            partial.unlink(missing_ok=True)
         raise AddonInputError(path, f"cannot write the file ({err.strerror})", "choose another folder") from None
     binary = rest[8:]
     sizes = [_png_size(binary[v.get("byteOffset", 0):]) for v in (gltf["bufferViews"][i["bufferView"]]
