@@ -12,10 +12,8 @@ roughness into images, and Blender's glTF exporter writes the copy with a Princi
 material that reads those textures (or, without baking, the colour attribute as vertex
 colours). The user's scene is left as it was."""
 
-import contextlib
 import json
 import math
-import os
 import struct
 from pathlib import Path
 
@@ -23,6 +21,7 @@ import bpy
 import numpy as np
 
 from .errors import AddonInputError, require
+from .files import write_atomic
 from .ply import read_display_mesh
 from .preview import cycles_device
 from .scene_mesh import COLOR_ATTRIBUTE, SOURCE_PROPERTY, reconstruction_material, shows
@@ -73,19 +72,14 @@ def write_run_glb(source: Path, path: Path, name: str, matrix_world) -> dict:
     text += b" " * (-len(text) % 4)
     rest = data[20 + n:]
     out = struct.pack("<4sII", b"glTF", 2, 20 + len(text) + len(rest)) + struct.pack("<I4s", len(text), b"JSON") + text + rest
-    partial = path.with_name(f".{path.name}.partial")
     try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        partial.write_bytes(out)
-        os.replace(partial, path)
+        write_atomic(path, out)
     except OSError as err:
-        with contextlib.suppress(OSError):  # nothing half-written stays behind
-            partial.unlink(missing_ok=True)
         raise AddonInputError(path, f"cannot write the file ({err.strerror})", "choose another folder") from None
     binary = rest[8:]
     sizes = [_png_size(binary[v.get("byteOffset", 0):]) for v in (gltf["bufferViews"][i["bufferView"]]
                                                                  for i in gltf.get("images", []))]
-    faces = gltf["accessors"][gltf["meshes"][0]["primitives"][0]["indices"]]["count"] // 3
+    faces = gltf["accessors"][mesh["primitives"][0]["indices"]]["count"] // 3
     return {"path": str(path), "faces": faces, "texture_size": max(sizes, default=0), "source": "run"}
 
 
