@@ -74,6 +74,7 @@ class ReconstructJob(Job):
                  root: Path = interpreter.PACKAGE_DIR):
         self.object_name = object_name
         self.applied: str | None = None  # the snapshot mesh now in the scene
+        self.applied_stamp: int | None = None  # its file's mtime: material stages rewrite one name
         self.apply_seconds: list[float] = []  # main-thread cost of each update
         super().__init__(python, args, run_dir, "reconstruct", root)
         accuracy.clear()  # the curve shown is this run's
@@ -92,12 +93,16 @@ class ReconstructJob(Job):
     def apply_latest(self, context) -> bool:
         """Show the newest snapshot if it is not shown yet; True when the scene changed."""
         path = latest_snapshot(self.run_dir)
-        if path is None or str(path) == self.applied:
+        try:
+            stamp = path.stat().st_mtime_ns if path is not None else None
+        except OSError:
+            return False  # superseded and removed meanwhile: the next step reads the newer one
+        if path is None or (str(path), stamp) == (self.applied, self.applied_stamp):
             return False
         start = time.perf_counter()
         if not show_snapshot(context, path, self.object_name):
-            return False  # superseded and removed meanwhile: the next step reads the newer one
-        self.applied = str(path)
+            return False
+        self.applied, self.applied_stamp = str(path), stamp
         self.apply_seconds.append(time.perf_counter() - start)
         return True
 

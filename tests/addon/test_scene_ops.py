@@ -217,6 +217,22 @@ def test_job_streams_snapshots_into_the_scene(context, addon, tmp_path):
     assert max(job.apply_seconds) < 0.05
 
 
+def test_a_snapshot_rewritten_under_its_name_is_shown_again(context, addon, tmp_path):
+    """Material stages do not advance the iteration, so the backend rewrites one snapshot
+    name; the scene must follow each rewrite, not only each new name."""
+    import os
+
+    job = _scripted_job(addon, tmp_path, "--steps", "3", "--delay", "0.02")
+    job.run_blocking(context, interval=0.02)
+    last = addon.jobs.latest_snapshot(tmp_path / "run")
+    assert job.applied == str(last) and not job.apply_latest(context)  # shown and unchanged
+    stat = last.stat()
+    last.write_bytes(last.read_bytes())  # rewritten in place, as the backend's atomic replace does
+    os.utime(last, ns=(stat.st_atime_ns, stat.st_mtime_ns + 10**9))
+    assert job.apply_latest(context) and job.applied == str(last)
+    assert not job.apply_latest(context)
+
+
 def test_job_crash_reports_log_tail_and_keeps_snapshot(context, addon, tmp_path):
     job = _scripted_job(addon, tmp_path, "--mode", "crash", "--delay", "0.02")
     job.run_blocking(context, interval=0.02)
