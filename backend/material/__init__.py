@@ -24,8 +24,8 @@ Typical use by the loop (see ``driver``)::
     material = driver.material(mesh, cameras, images, masks)    # what Appearance.initial_material returns
     renderer = SceneRenderer(mesh, material.field, ...)         # the level's renderer (AD integrator)
     while not driver.done:                                      # alternating with geometry levels
-        ...geometry level...; material.on_subdivide(old, new) or material.on_remesh(new, old)
-        driver.on_remesh(new, material, cameras)                # only after a re-mesh
+        ...geometry level...; material.on_subdivide(old, new) or material.on_remesh(new, old, reset=False)
+        driver.on_remesh(new, material, cameras, reset=False)   # only after a re-mesh
         driver.cycle(renderer, images, masks, material)
     export.write_glb(run / "result.glb", mesh, material)
 """

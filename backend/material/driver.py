@@ -4,7 +4,7 @@
     material = driver.material(mesh, cameras, images, masks) # labels voted, neutral grey start
     ... after each geometry level, with the level's renderer and views:
     driver.cycle(renderer, images, masks, material, emit)    # one stage of the schedule
-    driver.on_remesh(mesh, material, cameras)                # after a re-mesh (labels re-voted)
+    driver.on_remesh(mesh, material, cameras, reset=False)   # after a re-mesh (labels re-voted)
     driver.finalise()                                        # geometry converged: last, longer stages
     driver.restart(material, 3)                              # ... from grey, constants first (a relight)
     driver.refine() / driver.skip_to() / driver.skip_rest()  # the schedule's other moves
@@ -132,10 +132,12 @@ class MaterialDriver:
         self.specular_check = check_specular_texture(renderer, images, masks, material, views)
         return self.specular_check
 
-    def on_remesh(self, mesh: Mesh, material: MeshColorMaterial, cameras: list[Camera]) -> None:
-        """Call after ``material.on_remesh(mesh)``: labels re-voted, the schedule restarts."""
+    def on_remesh(self, mesh: Mesh, material: MeshColorMaterial, cameras: list[Camera],
+                  reset: bool = True) -> None:
+        """Call after ``material.on_remesh(mesh, ..., reset)``: labels re-voted; the schedule
+        restarts from its constant stage when the material was ``reset`` to grey."""
         self.relabel(mesh, material, cameras)
-        self.schedule.on_remesh()
+        self.schedule.on_remesh(reset)
 
     def state(self) -> dict:
         """The schedule's position and the stage length, JSON-able (for --resume)."""

@@ -250,7 +250,7 @@ class Appearance:
 
     def on_remesh(self, mesh, material, views) -> None:
         if self.driver is not None:
-            self.driver.on_remesh(mesh, material, [v.camera for v in views])
+            self.driver.on_remesh(mesh, material, [v.camera for v in views], reset=False)
         self.decide(mesh, material, views, reason="re-meshed")
 
     def state(self) -> dict | None:

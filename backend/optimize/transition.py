@@ -1,6 +1,6 @@
 """Between two levels: re-mesh when the surface has become inconsistent (ray casting +
-screened Poisson; the material restarts from grey), else subdivide 1-to-4 and simplify to
-the face budget (the material carried over)."""
+screened Poisson), else subdivide 1-to-4 and simplify to the face budget. Either way the
+material is carried over: resampled at the closest points of the old surface."""
 
 from __future__ import annotations
 
@@ -56,7 +56,9 @@ def _remesh(run, old) -> bool:
             run.emit("warning", message=f"re-meshing not applied: {err}")
             remeshed = None
         else:
-            run.material.on_remesh(remeshed)
+            # the rebuilt surface lies on the old one where the views agree: resample the fitted
+            # material instead of restarting it from grey, which cost every level a refit
+            run.material.on_remesh(remeshed, old_mesh=old, reset=False)
             run.appearance.on_remesh(remeshed, run.material, run.viewset.at(c.coarse_size))
             s.mesh = remeshed
     s.timed("remesh", start)

@@ -244,21 +244,26 @@ def test_a_staged_run_polishes_the_surface_under_the_fitted_material(capture, tm
     assert [r.split() for r in after_rounds] == [["material:specular"]] * len(polish), order
 
 
-def test_simplification_carries_the_fitted_material_to_the_next_level(capture, tmp_path):
-    """Between levels the subdivided mesh is simplified to the face budget; its mesh colors
-    are resampled from the old surface (not reset to grey), so the next level starts from the
-    material the last one fitted."""
+@pytest.mark.parametrize("remesh", ["never", "always"])
+def test_the_next_level_starts_from_the_fitted_material(capture, tmp_path, remesh):
+    """Between levels the subdivided mesh is simplified to the face budget, or the surface is
+    rebuilt by screened Poisson (``always``); either way its mesh colors are resampled from
+    the old surface (not reset to grey), so the next level starts from the material the last
+    one fitted."""
     run = tmp_path / "run"
     proc = run_cli("reconstruct", capture, "--out", run, *FAST, "--material", "staged", "--max-levels", 3,
-                   "--level-iterations", 40, "--remesh", "never", "--iterations", 150, timeout=600)
+                   "--level-iterations", 40, "--remesh", remesh, "--iterations", 150, timeout=600)
     assert proc.returncode == 0, proc.stderr[-3000:]
     levels = [lv for lv in json.loads((run / "report.json").read_text())["levels"] if not lv.get("polish")]
     assert len(levels) == 3, levels
     before, after = levels[1], levels[2]
-    assert before["size"] == after["size"] and before["faces"] < after["faces"] < 4 * before["faces"]  # simplified
-    # validation losses leave out the render noise, so the surface's own change under
-    # simplification weighs more than it did against a noise floor; grey would start far above
-    assert after["loss_start"] < before["loss"] * 1.3 and after["loss_start"] < before["loss_start"], (before, after)
+    assert before["size"] == after["size"] and before["faces"] < after["faces"] < 4 * before["faces"]
+    assert (before.get("remesh") or {}).get("applied", False) == (remesh == "always"), before
+    # validation losses leave out the render noise, so the surface's own change weighs more
+    # than it did against a noise floor (more so for a rebuilt surface); a material restarted
+    # from grey starts the next level several times above the last one's loss
+    rise = 1.3 if remesh == "never" else 2.0
+    assert after["loss_start"] < before["loss"] * rise and after["loss_start"] < before["loss_start"], (before, after)
 
 
 def test_sigterm_cancels_cleanly(capture, tmp_path):
