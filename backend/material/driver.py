@@ -135,9 +135,11 @@ class MaterialDriver:
     def on_remesh(self, mesh: Mesh, material: MeshColorMaterial, cameras: list[Camera],
                   reset: bool = True) -> None:
         """Call after ``material.on_remesh(mesh, ..., reset)``: labels re-voted; the schedule
-        restarts from its constant stage when the material was ``reset`` to grey."""
+        restarts from its constant stage when the material was ``reset`` to grey, else goes on
+        as after a simplification (the material resampled, its stage kept)."""
         self.relabel(mesh, material, cameras)
-        self.schedule.on_remesh(reset)
+        if reset:
+            self.schedule.on_remesh()
 
     def state(self) -> dict:
         """The schedule's position and the stage length, JSON-able (for --resume)."""

@@ -88,13 +88,10 @@ class MaterialSchedule:
         if self.STAGES.index(stage) > self.STAGES.index(self.stage):
             self.stage, self.cycle, self.stale, self.best, self.cycle_limit = stage, 0, 0, math.inf, None
 
-    def on_remesh(self, reset: bool = True) -> None:
-        """After a re-mesh. A material restarted from grey (``reset``) runs a short constant
-        stage, then textures again; a resampled one keeps its stage, against a new best loss
-        (the surface under it changed)."""
-        self.cycle, self.stale, self.best = 0, 0, math.inf
-        if reset:
-            self.stage, self.constant_cycles = "constant", self.restart_cycles
+    def on_remesh(self) -> None:
+        """The material restarted from grey: a short constant stage, then textures again."""
+        self.stage, self.cycle, self.stale, self.best = "constant", 0, 0, math.inf
+        self.constant_cycles = self.restart_cycles
 
 
 def saved_values(material: MeshColorMaterial) -> tuple[dict, float]:

@@ -9,7 +9,7 @@ integrator such as ``prb``; its max_depth decides how much global illumination i
     while schedule.stage != "done":
         ... geometry steps ...
         run_cycle(schedule, renderer, images, weights, material)   # one material cycle
-        # after a re-mesh: material.on_remesh(mesh, old, reset=False); schedule.on_remesh(reset=False)
+        # after a re-mesh that restarts the material from grey: material.on_remesh(mesh); schedule.on_remesh()
 
 Stages: ``constant`` (one albedo, specular and roughness per material; the first cycles),
 ``diffuse`` (mesh-color albedo from the constants, specular highlights dropped from the

@@ -60,8 +60,11 @@ def test_driver_labels_and_cycles(tmp_path):
     albedo = material.values("albedo")
     assert albedo[1, 2] > albedo[1, 0] and albedo[0, 0] > albedo[0, 2]  # blue top, orange bottom
     assert driver.schedule.stage == "diffuse" and not driver.done
-    material.on_remesh(procedural.blob(2), old_mesh=mesh)
-    driver.on_remesh(procedural.blob(2), material, cams)
+    material.on_remesh(procedural.blob(2), old_mesh=mesh, reset=False)
+    driver.on_remesh(procedural.blob(2), material, cams, reset=False)  # resampled: the stage goes on
+    assert driver.schedule.stage == "diffuse"
+    material.on_remesh(procedural.blob(2), old_mesh=procedural.blob(2))
+    driver.on_remesh(procedural.blob(2), material, cams)  # restarted from grey: constants first
     assert driver.schedule.stage == "constant" and material.n_faces == procedural.blob(2).n_faces
     report = driver.report()
     assert report["labels"]["materials"] == [1, 2] and report["stages"][0]["stage"] == "constant"
