@@ -44,7 +44,7 @@ class LevelRun:
         return self.config.patience
 
     def limit(self) -> int:
-        return self.config.level_iterations
+        return self.state.level_limit or self.config.level_iterations
 
     def reserve(self) -> float:
         return self.run.budget.geometry_reserve()

@@ -19,6 +19,10 @@ image size: four points, three coefficients.
 A preset's levels follow its settings: level l renders at ``level_size(l)`` with the faces
 the face budget gives after l subdivisions (``FaceBudget``); ``levels`` and ``steps`` per
 level are the calibration run's (``presets.json``), else ``max_levels`` x ``level_iterations``.
+A level ends on its own convergence; one whose validation loss keeps creeping down (mesh
+colors fitted jointly on a textured object) would run to ``level_iterations``, so a run that
+follows a calibrated plan stops each level at ``LEVEL_SLACK`` times the planned steps
+(``PresetPlan.level_limit``; the later levels, the final stages and the polish get the time).
 With the staged material (the default) every level is followed by one material cycle of
 ``FitSettings.iterations`` one-view steps and a full-view evaluation, geometry convergence by
 ``FINAL_MATERIAL_CYCLES`` cycles four times as long, and ``POLISH_ROUNDS`` (at most
@@ -38,6 +42,7 @@ held-out PSNR comes from optimize/forecast.py. ``bench plan`` compares predicted
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -55,6 +60,7 @@ FINAL_MATERIAL_CYCLES = 4.5  # long cycles (x4 iterations) on the converged geom
 POLISH_ROUNDS = 2.5  # each followed by one long refinement cycle
 POLISH_STEPS = 170  # steps per polish round (at most level_iterations x polish_length)
 MATERIAL_ITERATIONS = 40  # FitSettings.iterations
+LEVEL_SLACK = 1.25  # a calibrated level may run this much longer than planned before it ends
 # a material iteration's own work beyond render and gradient (Adam, smoothness, highlight weights)
 MATERIAL_OVERHEAD_S = 0.03
 
@@ -108,6 +114,7 @@ class PresetPlan:
     polish_s: float
     fixed_s: float
     budget_s: float | None = None
+    level_limit: int | None = None  # steps after which a level ends (calibrated steps only)
     expected_f1: float | None = None  # on the calibration scene
     predicted_psnr: float | None = None  # held-out, from this capture's probe (optimize/forecast.py)
     psnr_spread: float | None = None  # the calibration captures' largest distance from their median gain
@@ -136,6 +143,7 @@ class PresetPlan:
                 "geometry_s": round(self.geometry_s, 1), "material_s": round(self.material_s, 1),
                 "polish_s": round(self.polish_s, 1), "fixed_s": round(self.fixed_s, 1),
                 "levels": [lv.to_json() for lv in self.levels], "steps_from": self.steps_from,
+                "level_limit": self.level_limit,
                 "expected_f1": self.expected_f1, "predicted_psnr": self.predicted_psnr, "psnr_spread": self.psnr_spread,
                 "phases": [p.to_json() for p in self.phases]}
 
@@ -146,6 +154,7 @@ def predict(name: str, config, costs: StepCosts, pixels_at, n_views: int, staged
     (``pixels_at(size)``: one view's pixels at a level size)."""
     c = config
     plan, source = levels(c, entry)
+    limit = level_limit(c, entry)
     val = len(validation_views(n_views, c.validation_views))
     geometry = material = 0.0
     phases = []
@@ -155,7 +164,7 @@ def predict(name: str, config, costs: StepCosts, pixels_at, n_views: int, staged
         step = c.views_per_step * costs("gradient", p, lv.faces) + 2 * val * costs("forward", p, lv.faces) / c.eval_every
         lv.seconds = lv.steps * step + 2 * val * costs("forward", p, lv.faces)
         geometry += lv.seconds
-        phases.append(Phase("level", lv.steps, lv.seconds / lv.steps, cap=c.level_iterations))
+        phases.append(Phase("level", lv.steps, lv.seconds / lv.steps, cap=limit or c.level_iterations))
         if staged:
             cycle = cycle_seconds(costs, p, lv.faces, n_views)
             material += cycle
@@ -178,7 +187,18 @@ def predict(name: str, config, costs: StepCosts, pixels_at, n_views: int, staged
             phases.append(Phase("polish", steps, step, cap=c.level_iterations * c.polish_length, count=rounds,
                                 cycle_units=long_units, cycle_s=long_cycle / long_units))
     return PresetPlan(name, plan, source, geometry, material, polish, FIXED_SECONDS, c.time_budget_s,
-                      (entry or {}).get("expected_f1"), phases=phases)
+                      limit, (entry or {}).get("expected_f1"), phases=phases)
+
+
+def level_limit(config, entry: dict | None) -> int | None:
+    """The steps after which a level of a run that follows the calibration ``entry`` ends:
+    ``LEVEL_SLACK`` x its steps per level, within [min_level_iterations, level_iterations];
+    None without a calibration (the config's own limits hold)."""
+    if not (entry and entry.get("levels") and entry.get("iterations")):
+        return None
+    c = config
+    per_level = entry["iterations"] / entry["levels"]
+    return int(min(c.level_iterations, max(c.min_level_iterations, math.ceil(LEVEL_SLACK * per_level))))
 
 
 def cycle_seconds(costs: StepCosts, pixels: float, faces: int, n_views: int, scale: int = 1) -> float:

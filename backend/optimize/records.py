@@ -74,6 +74,7 @@ class RunState:
     appearance: dict | None = None
     material_kind: str | None = None
     accuracy: dict | None = None  # the held-out series so far (optimize/accuracy.py; --track-accuracy)
+    level_limit: int | None = None  # steps that end a level, from the run's plan (optimize/plan.py)
 
     def timed(self, name: str, start: float) -> None:
         """Charge the time since ``start`` (perf_counter) to ``timings[name]``."""
@@ -91,7 +92,7 @@ class RunState:
                 "budget": self.budget.state(), "levels": [lv.to_json() for lv in self.levels],
                 "levels_ended": self.levels_ended, "skipped": self.skipped, "timings": self.timings,
                 "init": self.init, "seconds": round(seconds, 3), "appearance": appearance,
-                "material_kind": self.material_kind, "accuracy": self.accuracy}
+                "material_kind": self.material_kind, "accuracy": self.accuracy, "level_limit": self.level_limit}
 
     @classmethod
     def from_json(cls, state: dict) -> "RunState":
@@ -100,4 +101,5 @@ class RunState:
                    levels=[LevelRecord.from_json(lv) for lv in state["levels"]],
                    levels_ended=state.get("levels_ended"), skipped=state["skipped"], timings=state["timings"],
                    init=state["init"], seconds_before=state["seconds"], appearance=state.get("appearance"),
-                   material_kind=state.get("material_kind"), accuracy=state.get("accuracy"))
+                   material_kind=state.get("material_kind"), accuracy=state.get("accuracy"),
+                   level_limit=state.get("level_limit"))

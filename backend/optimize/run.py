@@ -165,6 +165,7 @@ class Reconstruction:
                                        self.appearance.material_settings(RenderSettings.for_geometry(c)), s.mesh,
                                        self.accuracy.held)
             self.budget.remaining = None if planned is None else Remaining.from_plan(planned, c.time_budget_s)
+            s.level_limit = getattr(planned, "level_limit", None)
         report = inspect(s.mesh)
         s.init = {"kind": kind, "faces": s.mesh.n_faces, "genus": report.genus,
                   "seconds": round(time.perf_counter() - start, 3)}
@@ -362,6 +363,7 @@ class Reconstruction:
             "capture": str(self.capture.root), "settings": dataclasses.asdict(self.config),
             "stiffness": self.stiffness.event(),
             "init": s.init, "levels": [lv.to_json() for lv in s.levels], "levels_ended": s.levels_ended,
+            "level_limit": s.level_limit or c.level_iterations,
             "result": {"faces": s.mesh.n_faces, "vertices": s.mesh.n_vertices,
                        "genus": inspect(s.mesh).genus, "iterations": s.iteration},
             "losses": [lv.loss for lv in s.levels], "skipped_steps": s.skipped,

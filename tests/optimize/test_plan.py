@@ -10,7 +10,7 @@ import pytest
 
 from backend.optimize import plan
 from backend.optimize.config import ReconstructConfig
-from backend.optimize.presets import PRESETS
+from backend.optimize.presets import PRESETS, calibrated
 from tests.helpers import run_cli
 
 
@@ -42,6 +42,19 @@ def test_levels_follow_the_face_budget_and_the_calibration_steps():
     assert len(levels) == 8 and {lv.steps for lv in levels} == {171} and source.startswith("calibration")
     capped = ReconstructConfig(**PRESETS["final"], iterations=500)
     assert sum(lv.steps for lv in plan.levels(capped, {"levels": 8, "iterations": 1370})[0]) == 500
+
+
+def test_a_calibrated_plan_ends_each_level_a_little_after_its_steps():
+    balanced = ReconstructConfig(**PRESETS["balanced"])
+    assert plan.level_limit(balanced, {"levels": 6, "iterations": 1188}) == 248  # 1.25 x 198
+    assert plan.level_limit(balanced, {"levels": 6, "iterations": 2400}) == balanced.level_iterations
+    assert plan.level_limit(balanced, {"levels": 6, "iterations": 60}) == balanced.min_level_iterations
+    assert plan.level_limit(balanced, None) is None  # no calibration: the config's own cap
+    costs = plan.StepCosts([], {kind: (0.01, 0.0, 0.0) for kind in ("gradient", "forward", "material")})
+    planned = plan.predict("balanced", balanced, costs, lambda size: size * size, 32, True,
+                           {"levels": 6, "iterations": 1188})
+    assert planned.level_limit == 248 and planned.to_json()["level_limit"] == 248
+    assert {p.cap for p in planned.phases if p.kind == "level"} == {248}
 
 
 def test_plan_prints_one_row_per_preset_and_runs_nothing(capture, tmp_path):
@@ -142,3 +155,23 @@ def test_a_capture_is_promised_the_figures_of_its_kind_of_lighting(tmp_path):
     path.write_text(json.dumps({"scene": "dragon: x", "presets": {"draft": entry}}))
     assert calibrated(path, kind="environment") == {} and calibration_scene("environment", path) is None
     assert calibrated(path)["draft"] == entry
+
+
+def test_a_run_ends_each_level_at_its_plans_limit(capture, tmp_path):
+    """A level whose validation loss never stops improving (here: any loss counts as a new
+    best) ends at 1.25x the calibrated steps per level, not at ``--level-iterations``."""
+    run = tmp_path / "run"
+    proc = run_cli("reconstruct", capture, "--out", run, "--preset", "draft", "--init", "sphere",
+                   "--level-iterations", 1000, "--max-levels", 1, "--max-size", 16, "--coarse-size", 16,
+                   "--initial-faces", 320, "--material", "known:0.6,0.6,0.6:0.25:0.35", "--effects", "specular",
+                   env={"SFT_RECONSTRUCT_SETTINGS": json.dumps({"plateau_tolerance": -1.0, "polish_rounds": 0})},
+                   timeout=600)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    events = [json.loads(line) for line in (run / "events.jsonl").read_text().splitlines()]
+    preset = next(e for e in events if e["event"] == "preset")
+    limit = preset["plan"]["level_limit"]
+    entry = calibrated(kind=preset["lighting_kind"])["draft"]
+    assert limit == plan.level_limit(ReconstructConfig(**{**PRESETS["draft"], "level_iterations": 1000}), entry)
+    report = json.loads((run / "report.json").read_text())
+    assert report["level_limit"] == limit < 1000
+    assert [lv["iterations"] for lv in report["levels"] if not lv.get("polish")] == [limit]
