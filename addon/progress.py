@@ -81,8 +81,10 @@ class RunState:
                 self.planned_s = 60.0 * float(event["predicted_minutes"])
             if event.get("predicted_psnr") is not None:
                 spread = event.get("psnr_spread")
+                # a capture scored finer than the calibration captures: the prediction is a floor
+                floor = event.get("psnr_extrapolated") == "finer"
                 self.predicted = f"{float(event['predicted_psnr']):.0f}" + (
-                    "" if spread is None else f" \u00b1 {float(spread):.0f}") + " dB"
+                    "+" if floor else "" if spread is None else f" \u00b1 {float(spread):.0f}") + " dB"
         elif kind == "lighting":
             self.lighting = lighting_summary(event)
         elif kind == "accuracy":

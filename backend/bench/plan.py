@@ -146,6 +146,7 @@ def measure(name: str, capture: Path, preset: str, out: Path, variant: str | Non
                time_error=None if predicted is None else round(predicted * 60 / timing["seconds"] - 1, 3),
                expected_f1=promise.get("expected_f1"), f1=None if f1 is None else round(f1 / 100, 4),
                probe_psnr=(promise.get("probe") or {}).get("psnr"), predicted_psnr=promise.get("predicted_psnr"),
+               probe_size=(promise.get("probe") or {}).get("size") or scored_size(capture, report),
                psnr=points[-1]["psnr"] if points else None,
                effects=effects.get("enabled"), levels=len(report.get("levels", [])),
                plan=(promise.get("plan") or {}) and {k: promise["plan"][k] for k in
@@ -160,6 +161,17 @@ def measure(name: str, capture: Path, preset: str, out: Path, variant: str | Non
     if row["psnr"] is not None and row["probe_psnr"] is not None:
         row["gain_db"] = round(row["psnr"] - row["probe_psnr"], 2)
     return row
+
+
+def scored_size(capture: Path, report: dict) -> int | None:
+    """The long side (px) of a run's scored held-out images: its ``accuracy_size`` at most the
+    capture's frames' (for runs whose probe did not record it)."""
+    try:
+        camera = json.loads((Path(capture) / "capture.json").read_text())["frames"][0]["camera"]
+        size = (report.get("accuracy_time") or {})["size"]
+        return min(int(size), max(int(camera["width"]), int(camera["height"])))
+    except (OSError, ValueError, KeyError, IndexError, TypeError):
+        return None
 
 
 def summary(rows: list[dict]) -> dict:
@@ -263,7 +275,8 @@ def write_gain(path: Path, preset: str, rows: list[dict], doc: dict) -> None:
         kinds[kind] = {"gain_db": kind_median, "spread_db": kind_spread, "captures": [r["capture"] for r in named]}
     line = fit_line([(r["probe_psnr"], r["gain_db"]) for r in rows if r.get("gain_db") is not None])
     presets[preset] = {"gain_db": median, "spread_db": spread, "line": line, "kinds": kinds,
-                       "captures": {r["capture"]: {k: r.get(k) for k in ("lighting_kind", "probe_psnr", "psnr", "gain_db")}
+                       "captures": {r["capture"]: {k: r.get(k) for k in ("lighting_kind", "probe_psnr", "psnr", "gain_db",
+                                                                         "probe_size")}
                                     for r in rows},
                        "code": doc["code"], "measured": doc["measured"], "machine": doc["machine"]}
     fsio.write_json(path, {"about": "held-out PSNR gain of each preset over the capture's accuracy probe "
@@ -292,6 +305,10 @@ def _replan(args, emit) -> int:
     fsio.write_json(args.out / "replan.json", fresh)
     print(table(rows), flush=True)
     if args.calibrate:  # the gains again from the recorded calibration runs (their code and date kept)
+        for row in doc["rows"]:
+            if row.get("probe_size") is None and (args.out / "runs" / row["capture"] / "report.json").is_file():
+                report = json.loads((args.out / "runs" / row["capture"] / "report.json").read_text())
+                row["probe_size"] = scored_size(args.out / "captures" / row["capture"], report)
         write_gain(args.gains_file, doc["preset"], doc["rows"], doc)
     emit("done", result=str(args.out / "replan.json"), **fresh["summary"])
     return 0

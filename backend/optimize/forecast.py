@@ -15,7 +15,11 @@ the prediction starts from a measurement on the capture itself:
 what the preset's geometry levels, finer textures and specular stage add on top of that,
 calibrated as the median over captures that are not used to test the prediction
 (``GAINS_FILE``, with the largest distance from that median as the prediction's spread;
-``bench plan`` compares predicted and measured on others). Two refinements are recorded in
+``bench plan`` compares predicted and measured on others). The gain holds at the image sizes
+it was calibrated at: a probe scored at a finer size than every calibration capture's starts
+further below what the run's finer levels reach (the hull's error and a coarse texture show
+more), so such a prediction is marked ``finer`` (:func:`extrapolated`) and shown as a floor,
+"21+ dB", without a spread. Two refinements are recorded in
 the file and not used, because each did worse on held-out captures it had not seen
 (docs/results.md, "Predicted time"): a median per kind of lighting (an environment map, or
 lights fixed to the cameras), and a line in the probe's PSNR (``fit_line``).
@@ -48,7 +52,8 @@ def probe(capture, config, held=None, mesh=None) -> dict | None:
     holds out of ``capture`` (``--track-accuracy``), else the probe holds out the same ones
     itself. The initial mesh is made as the run makes it, from the fitted views only (``mesh``:
     the run's own, when it was made so with the probe's settings). Returns
-    {"psnr", "seconds", "views", "source", "cycles", "faces"}."""
+    {"psnr", "seconds", "views", "source", "cycles", "faces", "size" (the scored images' long
+    side, px), "lighting_kind"}."""
     from ..geometry.init import initial_mesh  # these need the Mitsuba variant chosen (the plan's caller does)
     from . import accuracy
     from .appearance import Appearance
@@ -81,10 +86,11 @@ def probe(capture, config, held=None, mesh=None) -> dict | None:
             appearance.material_cycle(mesh, material, views, level=0)
             cycles += 1
         tracker = accuracy.AccuracyTracker(held, config)
+        size = max(max(v.camera.width, v.camera.height) for v in tracker.views())
         point = tracker.score(mesh, material, appearance.lighting, level=0, phase="probe", why="probe",
                               validation_loss=None, folder=Path(folder))
     return {"psnr": point["psnr"], "seconds": round(time.perf_counter() - start, 2), "views": point["views"],
-            "source": held.source, "cycles": cycles, "faces": mesh.n_faces,
+            "source": held.source, "cycles": cycles, "faces": mesh.n_faces, "size": size,
             "lighting_kind": lighting_kind(capture, config.lighting)}
 
 
@@ -121,6 +127,25 @@ def gain(gains: dict, preset: str) -> tuple[float, float | None] | None:
         return None
     spread = entry.get("spread_db")
     return float(entry["gain_db"]), None if spread is None else max(float(spread), SPREAD_FLOOR_DB)
+
+
+def calibrated_sizes(gains: dict) -> tuple[int, int] | None:
+    """The smallest and largest long side (px) at which the calibration captures' probes were
+    scored, over every preset's entry; None when the file records none."""
+    sizes = [int(c["probe_size"]) for entry in gains.values() for c in (entry.get("captures") or {}).values()
+             if isinstance(c, dict) and isinstance(c.get("probe_size"), (int, float))]
+    return (min(sizes), max(sizes)) if sizes else None
+
+
+def extrapolated(probed: dict | None, gains: dict | None = None) -> str | None:
+    """'finer' (or 'coarser') when the probe scored larger (smaller) images than every
+    calibration capture's, else None (also when either size is not known)."""
+    gains = load_gains() if gains is None else gains
+    known = calibrated_sizes(gains)
+    size = None if probed is None else probed.get("size")
+    if known is None or not isinstance(size, (int, float)):
+        return None
+    return "finer" if size > known[1] else "coarser" if size < known[0] else None
 
 
 def predicted_psnr(probed: dict | None, preset: str, gains: dict | None = None) -> float | None:

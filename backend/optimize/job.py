@@ -261,6 +261,7 @@ def _preset_event(args, emit, config, capture):
              predicted_minutes=None if plan is None else round(plan.presets[preset].minutes, 2),
              predicted_psnr=None if plan is None else plan.presets[preset].predicted_psnr,
              psnr_spread=None if plan is None else plan.presets[preset].psnr_spread,
+             psnr_extrapolated=None if plan is None else plan.presets[preset].psnr_extrapolated,
              probe=None if plan is None else plan.probe,
              plan=None if plan is None else {**plan.presets[preset].to_json(), "costs": plan.costs.to_json(),
                                              "render_settings": plan.settings},

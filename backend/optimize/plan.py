@@ -118,6 +118,7 @@ class PresetPlan:
     expected_f1: float | None = None  # on the calibration scene
     predicted_psnr: float | None = None  # held-out, from this capture's probe (optimize/forecast.py)
     psnr_spread: float | None = None  # the calibration captures' largest distance from their median gain
+    psnr_extrapolated: str | None = None  # "finer"/"coarser": scored at a size no calibration capture was
     phases: list[Phase] = dataclasses.field(default_factory=list)  # in order, for optimize/remaining.py
 
     @property
@@ -137,6 +138,11 @@ class PresetPlan:
     def minutes(self) -> float:
         return self.seconds / 60.0
 
+    def psnr_text(self) -> str | None:
+        """'≈ 24 ± 2 dB'; '21+ dB' for a capture scored finer than the calibration's (a floor:
+        optimize/forecast.py); None without a prediction."""
+        return psnr_text(self.predicted_psnr, self.psnr_spread, self.psnr_extrapolated)
+
     def to_json(self) -> dict:
         return {"preset": self.preset, "predicted_minutes": round(self.minutes, 2), "capped_by_budget": self.capped,
                 "unbounded_minutes": round(self.unbounded_seconds / 60, 2),
@@ -145,6 +151,7 @@ class PresetPlan:
                 "levels": [lv.to_json() for lv in self.levels], "steps_from": self.steps_from,
                 "level_limit": self.level_limit,
                 "expected_f1": self.expected_f1, "predicted_psnr": self.predicted_psnr, "psnr_spread": self.psnr_spread,
+                "psnr_extrapolated": self.psnr_extrapolated,
                 "phases": [p.to_json() for p in self.phases]}
 
 
@@ -240,9 +247,7 @@ class Plan:
     def line(self) -> str:
         """'Draft ≈ 3 min (≈ 24 ± 3 dB), Balanced ≈ 14 min (≈ 26 ± 2 dB), Final ≈ 40 min'"""
         return ", ".join(f"{n.capitalize()} \u2248 {minutes_text(p.minutes)}{' (budget)' if p.capped else ''}"
-                         + ("" if p.predicted_psnr is None else f" (\u2248 {p.predicted_psnr:.0f}"
-                            + ("" if p.psnr_spread is None else f" \u00b1 {p.psnr_spread:.0f}") + " dB)")
-                         for n, p in self.presets.items())
+                         + ("" if p.psnr_text() is None else f" ({p.psnr_text()})") for n, p in self.presets.items())
 
     def table(self) -> str:
         rows = [("preset", "levels", "sizes px", "faces", "steps", "predicted min", "held-out dB", "F1 (calibration)")]
@@ -251,10 +256,20 @@ class Plan:
             rows.append((name, str(len(p.levels)), f"{sizes[0]}-{sizes[-1]}" if sizes else "-",
                          f"{p.levels[0].faces}-{p.levels[-1].faces}" if p.levels else "-",
                          str(sum(lv.steps for lv in p.levels)), f"{p.minutes:.1f}" + (" (budget)" if p.capped else ""),
-                         "-" if p.predicted_psnr is None else f"{p.predicted_psnr:.1f}",
+                         "-" if p.predicted_psnr is None
+                         else f"{p.predicted_psnr:.1f}" + ("+" if p.psnr_extrapolated == "finer" else ""),
                          "-" if p.expected_f1 is None else f"{p.expected_f1:.3f}"))
         widths = [max(len(r[i]) for r in rows) for i in range(len(rows[0]))]
         return "\n".join("  ".join(x.ljust(w) for x, w in zip(r, widths)).rstrip() for r in rows)
+
+
+def psnr_text(predicted: float | None, spread: float | None, extrapolated: str | None = None) -> str | None:
+    """A predicted held-out PSNR as the plan line and the panel show it."""
+    if predicted is None:
+        return None
+    if extrapolated == "finer":
+        return f"{predicted:.0f}+ dB"
+    return f"\u2248 {predicted:.0f}" + ("" if spread is None or extrapolated else f" \u00b1 {spread:.0f}") + " dB"
 
 
 def minutes_text(minutes: float) -> str:
@@ -267,7 +282,7 @@ def make_plan(capture, configs: dict, settings, staged: bool, calibration: dict 
     ReconstructConfig}); ``settings``: the geometry steps' RenderSettings; ``calibration``:
     {preset: calibration entry}; ``initial``: the run's initial mesh (None: icospheres);
     ``probe``: forecast.probe's measurement, for each preset's predicted held-out PSNR."""
-    from .forecast import gain, load_gains, predicted_psnr
+    from .forecast import extrapolated, gain, load_gains, predicted_psnr
     from .views import ViewSet
 
     largest = max(c.max_size for c in configs.values())
@@ -282,7 +297,8 @@ def make_plan(capture, configs: dict, settings, staged: bool, calibration: dict 
     gains = load_gains()
     for name, p in presets.items():
         p.predicted_psnr = predicted_psnr(probe, name, gains)
-        p.psnr_spread = None if p.predicted_psnr is None else gain(gains, name)[1]
+        p.psnr_extrapolated = None if p.predicted_psnr is None else extrapolated(probe, gains)
+        p.psnr_spread = None if p.predicted_psnr is None or p.psnr_extrapolated else gain(gains, name)[1]
         p.fixed_s += (probe or {}).get("seconds", 0.0)  # a run probes again before its first step
     return Plan(costs, presets, dataclasses.asdict(settings), probe)
 

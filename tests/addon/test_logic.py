@@ -234,6 +234,10 @@ def test_the_predicted_psnr_is_shown_beside_the_held_out_scores():
     state.update({"event": "accuracy", "seconds": 5.0, "psnr": 20.5})
     state.update({"event": "accuracy", "seconds": 65.0, "psnr": 23.1})
     assert state.accuracy_text() == "Held-out PSNR 23.1 dB (+2.6 dB in 1m 00s, 2 scores; predicted 24 \u00b1 3 dB)"
+    finer = progress.RunState()  # scored finer than the calibration captures: a floor
+    finer.update({"event": "preset", "preset": "balanced", "predicted_psnr": 20.9, "psnr_spread": None,
+                  "psnr_extrapolated": "finer"})
+    assert finer.predicted == "21+ dB"
     resumed = progress.RunState()  # a resumed run's preset event predicts nothing
     resumed.update({"event": "preset", "preset": "draft", "predicted_psnr": None})
     resumed.update({"event": "accuracy", "seconds": 1.0, "psnr": 20.0})

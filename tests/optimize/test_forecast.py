@@ -32,6 +32,7 @@ def test_the_probe_scores_the_held_out_views_as_the_tracker_does(tiny):
     assert 12.0 < probed["psnr"] < 45.0  # a fitted grey-to-diffuse material on the visual hull
     assert probed["cycles"] >= 2 and probed["faces"] <= 500 and probed["seconds"] > 0
     assert probed["lighting_kind"] == "point"  # the tiny capture's point lights, recorded with the probe
+    assert probed["size"] == 48  # the scored images' long side: the capture's 48 px, under accuracy_size
     assert (len(capture.frames), capture.environment) == before  # the capture is not touched
 
 
@@ -81,10 +82,51 @@ def test_the_line_in_the_probe_is_recorded_not_used(tmp_path):
     assert forecast.fit_line([(18.0, 2.0), (22.0, 4.0)]) is None  # too few
 
 
+def test_a_capture_scored_finer_than_the_calibrations_gets_a_floor_not_a_spread(tmp_path):
+    """The gain holds at the sizes it was calibrated at; a probe scored at a finer size says so
+    (a floor, "21+ dB"), a coarser one drops the spread."""
+    from backend.optimize.plan import psnr_text
+
+    path = tmp_path / "forecast.json"
+    captures = {"a": {"gain_db": 3.0, "probe_size": 48}, "b": {"gain_db": 2.0, "probe_size": 64}}
+    path.write_text(json.dumps({"presets": {"draft": {"gain_db": 3.0, "spread_db": 2.0, "captures": captures},
+                                            "balanced": {"gain_db": 2.5, "captures": {"c": {"gain_db": 1.0}}}}}))
+    gains = forecast.load_gains(path)
+    assert forecast.calibrated_sizes(gains) == (48, 64)  # over every preset's captures that record one
+    assert forecast.extrapolated({"psnr": 18.0, "size": 128}, gains) == "finer"
+    assert forecast.extrapolated({"psnr": 18.0, "size": 32}, gains) == "coarser"
+    assert forecast.extrapolated({"psnr": 18.0, "size": 64}, gains) is None
+    assert forecast.extrapolated({"psnr": 18.0}, gains) is None  # an older probe: size unknown
+    assert forecast.extrapolated(None, gains) is None
+    path.write_text(json.dumps({"presets": {"draft": {"gain_db": 3.0, "captures": {"a": {"gain_db": 3.0}}}}}))
+    assert forecast.extrapolated({"psnr": 18.0, "size": 128}, forecast.load_gains(path)) is None  # no sizes
+    assert psnr_text(21.2, 2.2) == "\u2248 21 \u00b1 2 dB"
+    assert psnr_text(21.2, None, "finer") == "21+ dB"
+    assert psnr_text(21.2, 2.2, "coarser") == "\u2248 21 dB"
+    assert psnr_text(None, 2.2) is None
+
+
+def test_a_finer_capture_s_plan_shows_its_prediction_as_a_floor(tmp_path):
+    """``reconstruct --plan`` on a capture scored at 96 px, finer than the shipped calibration's."""
+    capture = tmp_path / "capture96"
+    run_cli("synth", "--out", capture, "--views", 8, "--resolution", 96, "--spp", 16, "--held-out", 2, check=True)
+    settings = json.dumps({"max_size": 96, "coarse_size": 24, "initial_faces": 500})
+    proc = run_cli("reconstruct", capture, "--out", tmp_path / "plan", "--plan", "--preset", "draft",
+                   env={"SFT_RECONSTRUCT_SETTINGS": settings}, timeout=300)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    event = json.loads(proc.stdout.strip().splitlines()[-1])
+    gains = forecast.load_gains()
+    assert event["probe"]["size"] == 96 > forecast.calibrated_sizes(gains)[1]
+    draft = event["presets"]["draft"]
+    assert draft["psnr_extrapolated"] == "finer" and draft["psnr_spread"] is None
+    assert f"({draft['predicted_psnr']:.0f}+ dB)" in event["line"]
+
+
 def test_calibration_writes_the_median_gain_and_records_each_kind_of_lightings(tmp_path):
     from backend.bench import plan as bench_plan
 
-    rows = [{"capture": "p1", "lighting_kind": "point", "probe_psnr": 20.0, "psnr": 23.0, "gain_db": 3.0},
+    rows = [{"capture": "p1", "lighting_kind": "point", "probe_psnr": 20.0, "psnr": 23.0, "gain_db": 3.0,
+             "probe_size": 48},
             {"capture": "p2", "lighting_kind": "point", "probe_psnr": 20.0, "psnr": 26.0, "gain_db": 6.0},
             {"capture": "p3", "lighting_kind": "point", "probe_psnr": 20.0, "psnr": 25.0, "gain_db": 5.0},
             {"capture": "e1", "lighting_kind": "environment", "probe_psnr": 18.0, "psnr": 20.5, "gain_db": 2.5},
@@ -98,6 +140,7 @@ def test_calibration_writes_the_median_gain_and_records_each_kind_of_lightings(t
     assert entry["kinds"]["point"] == {"gain_db": 5.0, "spread_db": 2.0, "captures": ["p1", "p2", "p3"]}
     assert entry["kinds"]["environment"]["gain_db"] == 2.75 and entry["kinds"]["environment"]["captures"] == ["e1", "e2"]
     assert forecast.load_gains(path)["balanced"]["gain_db"] == 2.0  # other presets kept
+    assert entry["captures"]["p1"]["probe_size"] == 48 and entry["captures"]["p2"]["probe_size"] is None
     # the line through (20, 4.67 mean) and (18, 2.75 mean): slope 0.96, largest residual 1.67
     assert entry["line"]["slope"] == pytest.approx(0.9583, abs=1e-3)
     assert entry["line"]["probe_range"] == [18.0, 20.0] and entry["line"]["spread_db"] == pytest.approx(1.67)
