@@ -86,7 +86,7 @@ def probe(capture, config, held=None, mesh=None) -> dict | None:
             appearance.material_cycle(mesh, material, views, level=0)
             cycles += 1
         tracker = accuracy.AccuracyTracker(held, config)
-        size = max(max(v.camera.width, v.camera.height) for v in tracker.views())
+        size = max((max(v.camera.width, v.camera.height) for v in tracker.views()), default=None)
         point = tracker.score(mesh, material, appearance.lighting, level=0, phase="probe", why="probe",
                               validation_loss=None, folder=Path(folder))
     return {"psnr": point["psnr"], "seconds": round(time.perf_counter() - start, 2), "views": point["views"],
