@@ -55,9 +55,9 @@ JOBS = (
     Job("demo", "Demo", 0.1, (("demo", "--out", "{out}"),)),
     Job("table1", "Table 1: shape and material (the paper's table)", 1.0,
         (("bench", "material", "--table", "--rerun", "--effects", "auto", "--out", "{out}"),)),
-    Job("geometry", "Geometry benchmark", 0.6, (("bench", "geometry", "--out", "{out}"),)),
-    Job("effects", "Effects: simulate only what a scene calls for", 0.7, (("bench", "effects", "--out", "{out}"),)),
-    Job("hdr", "HDR-lit step cost", 0.1, (
+    Job("geometry", "Geometry benchmark", 0.4, (("bench", "geometry", "--out", "{out}"),)),
+    Job("effects", "Effects: simulate only what a scene calls for", 0.15, (("bench", "effects", "--out", "{out}"),)),
+    Job("hdr", "HDR-lit step cost", 0.05, (
         ("bench", "hdr", "--steps", "6", "--configs", "sppi=0;sppi=12,guiding=none", "--out", "{out}/arma"),
         ("bench", "hdr", "--mesh", "bob", "--envmap", "sunset", "--steps", "6", "--configs",
          "sppi=0;sppi=12,guiding=none", "--out", "{out}/bob"),
