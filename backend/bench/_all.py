@@ -91,8 +91,10 @@ JOBS = (
         (("bench", "sweep", "--grid", "quick", "--out", "{out}", "--report", "{report}"),)),
     Job("calibrate", "Accuracy versus time: the sweep and the presets", 1.8,
         (("bench", "calibrate", "--scenes", "dragon,armadillo_env", "--out", "{out}/presets.json", "--work", "{out}/work"),)),
-    Job("plan", "Predicted time: a cost model per capture (issue #23)", 1.5, (
+    Job("plan", "Predicted time: a cost model per capture (issue #23)", 2.5, (
         ("bench", "plan", "--calibrate", "--preset", "draft", "--out", "{out}/calibrate",
+         "--gains-file", "{out}/forecast.json"),
+        ("bench", "plan", "--calibrate", "--preset", "balanced", "--out", "{out}/calibrate-balanced",
          "--gains-file", "{out}/forecast.json"),
         ("bench", "plan", "--preset", "draft", "--out", "{out}/test"))),
 )
