@@ -9,6 +9,7 @@ report: whether this interpreter can run the backend at all."""
 
 from __future__ import annotations
 
+import functools
 import glob
 import importlib
 import os
@@ -79,9 +80,30 @@ def choose(requested: str | None = None, announce=None) -> str:
                              "import backend before drjit/mitsuba, or set DRJIT_LIBLLVM_PATH "
                              "to the libLLVM.so in .venv/lib")
     _chosen = variant
-    if announce:
-        announce("variant", variant=variant, llvm=os.environ.get("DRJIT_LIBLLVM_PATH"))
+    if announce:  # the libLLVM path only where the LLVM backend runs: on CUDA it names nothing in use
+        llvm = {"llvm": os.environ.get("DRJIT_LIBLLVM_PATH")} if variant.startswith("llvm") else {}
+        announce("variant", variant=variant, **llvm)
     return variant
+
+
+@functools.lru_cache(maxsize=1)
+def _distributions() -> dict:
+    from importlib import metadata
+
+    return metadata.packages_distributions()
+
+
+def _version(name: str, module) -> str:
+    """The installed distribution's version: some modules' ``__version__`` lags their wheel's
+    (cholespy 2.2.0 says 1.0.0), and pymeshlab has none."""
+    from importlib import metadata
+
+    for dist in _distributions().get(name, [name]):
+        try:
+            return metadata.version(dist)
+        except metadata.PackageNotFoundError:
+            continue
+    return str(getattr(module, "__version__", "ok"))
 
 
 def readiness(requested: str | None = None) -> dict:
@@ -92,7 +114,7 @@ def readiness(requested: str | None = None) -> dict:
     for name in MODULES:
         try:
             mod = importlib.import_module(name)
-            report["versions"][name] = getattr(mod, "__version__", "ok")
+            report["versions"][name] = _version(name, mod)
         except Exception as err:  # any import failure means the module is unusable
             report["missing"].append(f"{name} ({err.__class__.__name__}: {err})")
     if "mitsuba" in report["versions"]:
