@@ -14,6 +14,7 @@ import glob
 import importlib
 import os
 import sys
+from importlib import metadata
 from pathlib import Path
 
 from .errors import InputError
@@ -88,16 +89,12 @@ def choose(requested: str | None = None, announce=None) -> str:
 
 @functools.lru_cache(maxsize=1)
 def _distributions() -> dict:
-    from importlib import metadata
-
     return metadata.packages_distributions()
 
 
 def _version(name: str, module) -> str:
     """The installed distribution's version: some modules' ``__version__`` lags their wheel's
     (cholespy 2.2.0 says 1.0.0), and pymeshlab has none."""
-    from importlib import metadata
-
     for dist in _distributions().get(name, [name]):
         try:
             return metadata.version(dist)
