@@ -76,14 +76,14 @@ JOBS = (
          "--resolution", "160", "--lighting", "env", "--env", FOREST, "--albedo", "pattern", "--held-out", "4",
          "--relit-env", "sky2"),
         *_run_and_score("{out}/capture", "{out}/auto", "--time-budget", "20"))),
-    Job("estimated-lighting", "Estimated lighting (issue #22, first figures)", 0.8, (
+    Job("estimated-lighting", "Estimated lighting (issue #22)", 0.8, (
         TORUS_MESH, TORUS + ("--albedo", "pattern"),
         *_run_and_score("{out}/capture", "{out}/captured", "--lighting", "captured", "--time-budget", "10"),
         *_run_and_score("{out}/capture", "{out}/estimate", "--lighting", "estimate", "--time-budget", "10"),
         tuple(x.replace("{out}/capture", "{out}/plain") for x in TORUS) + ("--albedo", "0.6,0.45,0.3"),
         *_run_and_score("{out}/plain", "{out}/plain-captured", "--lighting", "captured", "--time-budget", "10"),
         *_run_and_score("{out}/plain", "{out}/plain-estimate", "--lighting", "estimate", "--time-budget", "10"))),
-    Job("captures", "Real captures and the synthetic comparison (2026-11-27)", 0.6, (("bench", "captures", "--out", "{out}", "--minutes", "10"),)),
+    Job("captures", "Real captures on the current code (2026-11-30)", 0.6, (("bench", "captures", "--out", "{out}", "--minutes", "10"),)),
     Job("realworld", "Real-world captures", 0.6, (("bench", "realworld", "--out", "{out}"),)),
     Job("sfm", "Real-world captures", 0.25, (("bench", "sfm", "--out", "{out}/sfm.json"),)),
     Job("stability", "Numerical stability", 0.1, (("bench", "stability", "--quick", "--out", "{out}"),)),
