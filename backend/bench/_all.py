@@ -87,7 +87,7 @@ JOBS = (
     Job("realworld", "Real-world captures", 0.6, (("bench", "realworld", "--out", "{out}"),)),
     Job("sfm", "Real-world captures", 0.25, (("bench", "sfm", "--out", "{out}/sfm.json"),)),
     Job("stability", "Numerical stability", 0.1, (("bench", "stability", "--quick", "--out", "{out}"),)),
-    Job("sweep", "Accuracy versus time: the sweep and the presets", 3.4,
+    Job("sweep", "Accuracy versus time: the sweep and the presets", 0.6,
         (("bench", "sweep", "--grid", "quick", "--out", "{out}", "--report", "{report}"),)),
     Job("calibrate", "Accuracy versus time: the sweep and the presets", 1.8,
         (("bench", "calibrate", "--scenes", "dragon,armadillo_env", "--out", "{out}/presets.json", "--work", "{out}/work"),)),

@@ -13,6 +13,7 @@ from ._machine import machine_line
 
 PRESET_NAMES = ("draft", "balanced", "final")
 BUDGETS_MIN = (1, 3, 10, 30)
+SHARED_LOAD = 1.25  # load above this many times the cores: other jobs were running
 
 
 def _fmt(value, digits: int = 1) -> str:
@@ -221,10 +222,15 @@ def write(rows: list[dict], out: Path, scenes: dict, presets_path: Path | None =
     for m in machines.values():
         md.append(f"- Machine: {machine_line(m)} (Mitsuba {m.get('mitsuba', '?')}, {m.get('memory_gib', '?')} GiB).")
     if loads:
+        cores = next(iter(machines.values()), {}).get("cores")
+        # a run keeps its own cores busy: only a load well above them means other jobs shared the CPU
+        shared = not isinstance(cores, int) or max(loads) > SHARED_LOAD * cores
         md.append(f"- 1-minute load average around the runs: {min(loads):.1f}–{max(loads):.1f} on "
-                  f"{next(iter(machines.values()), {}).get('cores', '?')} cores. Other jobs shared the CPU, so "
-                  "wall-clock times are inflated (by about load / cores when the load exceeds the cores); the CPU "
-                  "seconds of the process are given too.")
+                  f"{cores or '?'} cores. " + (
+                      "Other jobs shared the CPU, so wall-clock times are inflated (by about load / cores when the "
+                      "load exceeds the cores); the CPU seconds of the process are given too." if shared else
+                      "The runs had the CPU to themselves (the load is their own); the CPU seconds of the process "
+                      "are given too."))
     if dates:
         md.append(f"- Measured {dates[0]} to {dates[-1]}.")
     codes = sorted({r.get("code", "unknown") for r in rows})
