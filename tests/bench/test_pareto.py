@@ -8,6 +8,7 @@ import math
 import numpy as np
 
 from backend.bench import _pareto
+from tests.helpers import REPO
 from backend.bench.calibrate import overrides
 from backend.optimize.presets import preset_for_budget
 from backend.bench.sweep import GRIDS, Setting
@@ -175,3 +176,20 @@ def test_a_scene_without_relit_views_gets_no_empty_panel(tmp_path):
     _report.plot([dict(r, relit_psnr=20.0) for r in rows], "lit", tmp_path / "lit.png")
     two, three = (Image.open(tmp_path / n).size[0] for n in ("video.png", "lit.png"))
     assert two < 0.75 * three, (two, three)
+
+
+def test_report_says_the_cpu_was_shared_only_when_the_load_was_above_the_cores(tmp_path):
+    """A sweep run alone keeps its own cores busy (load about the core count): the report says
+    so, and says other jobs shared the CPU only when the load was well above the cores."""
+    from backend.bench import _report
+    from backend.bench.sweep import SCENES
+
+    rows = json.loads((REPO / "bench" / "results.json").read_text())
+    cores = rows[0]["machine"]["cores"]
+    alone = [dict(r, load_before=float(cores), load_after=float(cores)) for r in rows]
+    shared = [dict(r, load_after=3.0 * cores) for r in alone]
+    said = {}
+    for name, these in (("alone", alone), ("shared", shared)):
+        said[name] = _report.write(these, tmp_path / name, SCENES).read_text()
+    assert "had the CPU to themselves" in said["alone"] and "Other jobs shared" not in said["alone"]
+    assert "Other jobs shared the CPU" in said["shared"]
