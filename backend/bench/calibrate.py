@@ -225,7 +225,7 @@ def add_arguments(parser) -> None:
     parser.add_argument("--scenes", default=",".join(KINDS.values()),
                         help="calibration scenes to run, one per kind of lighting (default: %(default)s); "
                              "the work folder's earlier rows, else the --out file's entries, stand in for the others")
-    parser.add_argument("--repeats", type=int, default=1, help="runs per preset (the median time is kept)")
+    parser.add_argument("--repeats", type=int, default=1, help="runs per preset (the median time and figures are kept)")
     parser.add_argument("--variant", help="Mitsuba variant (default: automatic)")
 
 

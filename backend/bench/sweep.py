@@ -3,7 +3,8 @@
 ``python -m backend bench sweep [--grid smoke|quick|full] [--scenes dragon,blob_env,corner,armadillo_env,video]``
 synthesises each scene once (cached in ``OUT/scenes``), then runs ``python -m backend
 reconstruct`` as a child process for every setting of the grid and records: wall-clock
-seconds (the median over repeats for runs shorter than ``--repeat-under``), the child's
+seconds (the median over repeats for runs shorter than ``--repeat-under``; each figure below
+is then the median over the runs too), the child's
 CPU seconds and peak memory (``os.wait4`` rusage), the 1-minute load average before and
 after, Chamfer-L1 and F1@0.01 (from the run's report), and novel-view and relit PSNR (the
 result rendered with its estimated material at the capture's held-out and relit cameras,
@@ -194,15 +195,40 @@ def view_scores(run: Path, capture, spp: int = 128) -> dict:
     return out
 
 
+def scores(run: Path, capture_dir: Path, eval_spp: int = 64) -> dict:
+    """One finished run's figures: geometry metrics and sizes from its report, novel-view and
+    relit PSNR/SSIM of its result."""
+    report = json.loads((run / "report.json").read_text())
+    m = report.get("metrics") or {}
+    out = dict(chamfer_l1=m.get("chamfer_l1"), f1=m.get("f1@0.01"), f1_005=m.get("f1@0.005"),
+               loop_seconds=report["timings"]["total"], faces=report["result"]["faces"],
+               iterations=report["result"]["iterations"], levels=len(report["levels"]),
+               material=report.get("material"))
+    out.update({k: round(v, 3) for k, v in view_scores(run, load_capture(capture_dir), eval_spp).items()})
+    return out
+
+
+# the figures a repeated setting reports as the median of its runs (the rest: its last run's)
+MEDIAN_FIGURES = ("chamfer_l1", "f1", "f1_005", "loop_seconds", "iterations", "levels", "novel_psnr", "novel_ssim",
+                  "relit_psnr", "relit_ssim")
+
+
 def measure(scene: str, capture_dir: Path, setting: Setting, out: Path, repeats: int = 1,
             repeat_under: float = 0.0, variant: str | None = None, eval_spp: int = 64, seed: int = 0) -> dict:
-    """Run one setting on one scene (repeated while cheap) and score its result."""
+    """Run one setting on one scene (repeated while cheap) and score its result. A repeated
+    setting reports the median time and the median of each figure over its runs (each run is
+    scored before the next overwrites its folder), with every run's time, F1 and held-out PSNR."""
     safe = setting.name.replace(":", "_").replace("=", "-")
     run = out / "runs" / scene / safe
-    runs = [reconstruct_child(capture_dir, run, setting, out / "logs" / scene / f"{safe}.log", seed, variant)]
-    while runs[-1]["rc"] == 0 and len(runs) < repeats and runs[0]["seconds"] < repeat_under:
-        runs.append(reconstruct_child(capture_dir, run, setting, out / "logs" / scene / f"{safe}.log", seed,
-                                      variant))
+    log = out / "logs" / scene / f"{safe}.log"
+    runs, scored = [], []
+    while True:
+        runs.append(reconstruct_child(capture_dir, run, setting, log, seed, variant))
+        if runs[-1]["rc"] != 0:
+            break
+        scored.append(scores(run, capture_dir, eval_spp))
+        if len(runs) >= repeats or runs[0]["seconds"] >= repeat_under:
+            break
     row = {"scene": scene, "name": setting.name, "setting": dataclasses.asdict(setting), "knobs": setting.knobs(),
            "args": setting.args(), "seed": seed, "repeats": len(runs), "rc": runs[-1]["rc"],
            "seconds_runs": [round(r["seconds"], 2) for r in runs],
@@ -213,16 +239,26 @@ def measure(scene: str, capture_dir: Path, setting: Setting, out: Path, repeats:
            "load_after": round(max(r["load_after"] for r in runs), 2),
            "measured": time.strftime("%Y-%m-%dT%H:%M:%S"), "run": str(run)}
     if row["rc"] != 0:
-        row["error"] = (out / "logs" / scene / f"{safe}.log").read_text()[-600:]
+        row["error"] = log.read_text()[-600:]
         return row
-    report = json.loads((run / "report.json").read_text())
-    m = report.get("metrics") or {}
-    row.update(chamfer_l1=m.get("chamfer_l1"), f1=m.get("f1@0.01"), f1_005=m.get("f1@0.005"),
-               loop_seconds=report["timings"]["total"], faces=report["result"]["faces"],
-               iterations=report["result"]["iterations"], levels=len(report["levels"]),
-               material=report.get("material"))
-    row.update({k: round(v, 3) for k, v in view_scores(run, load_capture(capture_dir), eval_spp).items()})
+    row.update(median_scores(scored))
+    if len(scored) > 1:
+        row.update(f1_runs=[s["f1"] for s in scored], novel_psnr_runs=[s.get("novel_psnr") for s in scored])
     return row
+
+
+def median_scores(scored: list[dict]) -> dict:
+    """The last run's scores, each of ``MEDIAN_FIGURES`` replaced by its median over the runs
+    that have it."""
+    out = dict(scored[-1])
+    for key in MEDIAN_FIGURES:
+        values = [s[key] for s in scored if s.get(key) is not None]
+        if values:
+            if all(isinstance(v, int) for v in values):  # steps, levels, faces stay counts
+                out[key] = statistics.median_low(values)
+            else:
+                out[key] = round(statistics.median(values), 6)
+    return out
 
 
 # -- results file ---------------------------------------------------------------------------------

@@ -84,3 +84,25 @@ def test_calibration_file_from_rows(swept, tmp_path):
     path.write_text(json.dumps(doc))
     fastest = min(doc["presets"], key=lambda n: doc["presets"][n]["expected_minutes"])
     assert preset_for_budget(1e-3, path) == fastest
+
+
+def test_a_repeated_setting_reports_the_median_of_its_runs(swept, tmp_path):
+    """Repeats score every run before the next overwrites its folder: the row's F1 and held-out
+    PSNR are the runs' medians (calibrate's --repeats keeps them), with each run's listed."""
+    setting = sweep.GRIDS["smoke"][0]
+    row = sweep.measure("tiny", swept / "work" / "scenes" / "tiny", setting, tmp_path, repeats=3,
+                        repeat_under=float("inf"), eval_spp=16)
+    assert row["rc"] == 0 and row["repeats"] == 3 and len(row["seconds_runs"]) == 3
+    assert len(row["f1_runs"]) == 3 and len(row["novel_psnr_runs"]) == 3
+    assert row["f1"] == sorted(row["f1_runs"])[1]
+    assert row["novel_psnr"] == sorted(row["novel_psnr_runs"])[1]
+    assert row["seconds"] == sorted(row["seconds_runs"])[1]
+    assert isinstance(row["iterations"], int) and isinstance(row["levels"], int)
+
+
+def test_median_scores_keep_counts_whole_and_the_last_material():
+    scored = [{"f1": 90.0, "iterations": 100, "levels": 2, "material": {"albedo": [0.1]}, "novel_psnr": None},
+              {"f1": 94.0, "iterations": 130, "levels": 3, "material": {"albedo": [0.2]}, "novel_psnr": 22.0}]
+    out = sweep.median_scores(scored)
+    assert out["f1"] == 92.0 and out["iterations"] == 100 and out["levels"] == 2
+    assert out["novel_psnr"] == 22.0 and out["material"] == {"albedo": [0.2]}
