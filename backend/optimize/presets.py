@@ -13,9 +13,10 @@ import json
 from pathlib import Path
 
 PRESETS = {
-    # a quick look: two polish rounds at most (four can take longer than its three levels)
+    # a quick look: one polish round (a second buys little for a fifth of the run, and whether
+    # it runs, decided by the first one's gain, made the length of a run unpredictable)
     "draft": {"max_size": 96, "coarse_size": 48, "initial_faces": 2000, "max_levels": 3, "level_iterations": 120,
-              "validation_views": 4, "polish_rounds": 2},
+              "validation_views": 4, "polish_rounds": 1},
     # at most six levels; Final runs at least one more, then until the surface stops improving,
     # so that it never stops short of Balanced (a flat level can end refinement early)
     "balanced": {"max_levels": 6},
