@@ -12,7 +12,7 @@ Rows per mesh: ``initialisation`` (the carved mesh with the neutral grey materia
 starts from) and ``reconstruction`` (the run's final mesh rendered with its mesh colors, as
 the run fitted them; geometry scores use ``result.ply``, the same mesh). Columns:
 Chamfer-L1 and F1@0.01 (100k samples, fractions of the truth's longest side), PSNR / SSIM
-of the full render and of its diffuse-only and specular-only passes (backend.material.passes)
+of the full render and of its diffuse-only and specular-only passes (backend.render.passes)
 at the held-out views under their point lights, against the truth rendered the same way;
 for the reconstruction also albedo RMSE, PSNR under the relit sky (never seen by the run),
 and the full PSNR its geometry reaches with the true material sampled into the same mesh
@@ -42,7 +42,7 @@ from ..geometry.init import initial_mesh
 from ..geometry.mesh import Mesh, load_mesh, save_mesh
 from ..geometry.topology import keep_largest_components
 from ..material.model import MeshColorMaterial
-from ..material.passes import component_renders
+from ..render.passes import component_renders
 from ..material.transfer import locate
 from ..metrics.geometry import corresponding_albedo, geometry_metrics
 from ..metrics.image import albedo_rmse, image_metrics

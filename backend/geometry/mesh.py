@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import fsio
+from .. import fsio, ply
 from ..errors import InputError
 
 
@@ -176,23 +176,7 @@ def _read_ply(path: Path) -> Mesh | None:
 
 def ply_bytes(mesh: Mesh) -> bytes:
     """Binary PLY: float32 positions, float32 linear colours as red/green/blue, attributes."""
-    cols = [("x", "<f4"), ("y", "<f4"), ("z", "<f4")]
-    if mesh.vertex_colors is not None:
-        cols += [("red", "<f4"), ("green", "<f4"), ("blue", "<f4")]
-    cols += [(k, "<f4") for k in mesh.attributes]
-    v = np.empty(mesh.n_vertices, dtype=cols)
-    v["x"], v["y"], v["z"] = mesh.vertices.T.astype(np.float32)
-    if mesh.vertex_colors is not None:
-        v["red"], v["green"], v["blue"] = np.asarray(mesh.vertex_colors, np.float32).T
-    for k, a in mesh.attributes.items():
-        v[k] = a
-    f = np.empty(mesh.n_faces, dtype=[("n", "u1"), ("i", "<i4", (3,))])
-    f["n"] = 3
-    f["i"] = mesh.faces
-    header = ["ply", "format binary_little_endian 1.0", f"element vertex {mesh.n_vertices}"]
-    header += [f"property float {name}" for name, _ in cols]
-    header += [f"element face {mesh.n_faces}", "property list uchar int vertex_indices", "end_header"]
-    return ("\n".join(header) + "\n").encode() + v.tobytes() + f.tobytes()
+    return ply.ply_bytes(mesh.vertices, mesh.faces, mesh.vertex_colors, mesh.attributes)
 
 
 def save_mesh(path: str | Path, mesh: Mesh) -> None:

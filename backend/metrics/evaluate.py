@@ -19,7 +19,7 @@ views (``true geometry``: the PSNR the same material reaches on perfect geometry
 difference is the geometry's). When the run fitted a specular lobe (its display mesh carries
 a non-zero ``specular``), the truth carries its material and its held-out views their light,
 the held-out views are also scored as the paper's Table 1 splits them: a diffuse-only and a
-specular-only pass of both, each under its own lighting (:mod:`backend.material.passes`)."""
+specular-only pass of both, each under its own lighting (:mod:`backend.render.passes`)."""
 
 from __future__ import annotations
 
@@ -237,7 +237,7 @@ def _component_metrics(display: Mesh, gt: Mesh, views, truth_views, spp: int = 6
     """PSNR/SSIM of the diffuse-only and specular-only passes of ``display`` (under the run's
     lighting, ``views``) against the same passes of the truth (under the capture's,
     ``truth_views``), both rendered now with the same seeds at the same frames."""
-    from ..material.passes import component_renders  # after variant.choose(), as above
+    from ..render.passes import component_renders  # after variant.choose(), as above
     from ..render.views import display_field
 
     components = ("diffuse", "specular")

@@ -10,6 +10,7 @@ from pathlib import Path
 
 BACKEND = Path(__file__).resolve().parents[2] / "backend"
 KNOWN_CYCLES: set[frozenset[str]] = set()  # none: add one here only with the reason it must stay
+KNOWN_PACKAGE_CYCLES: set[frozenset[str]] = set()  # none, as above
 
 
 def module_name(path: Path) -> str:
@@ -99,6 +100,33 @@ def test_no_import_cycles():
     g = {m: {t for t in ts if not _package_edge(m, t)} for m, ts in graph().items()}
     found = [c for c in cycles(g) if frozenset(c) not in KNOWN_CYCLES]
     assert not found, f"import cycles: {found}"
+
+
+def package(module: str) -> str:
+    """The top-level backend package (or root module) ``module`` belongs to: backend.X."""
+    return ".".join(module.split(".")[:2])
+
+
+def package_graph(g: dict[str, set[str]]) -> dict[str, set[str]]:
+    """Edges between top-level packages: backend.X -> backend.Y when a module of X imports one of Y."""
+    out: dict[str, set[str]] = {}
+    for m, ts in g.items():
+        out.setdefault(package(m), set()).update(package(t) for t in ts if package(t) != package(m))
+    return out
+
+
+def test_no_cycles_between_packages():
+    """The top-level packages form a DAG: no backend.X <-> backend.Y, directly or via a chain."""
+    found = [c for c in cycles(package_graph(graph())) if frozenset(c) not in KNOWN_PACKAGE_CYCLES]
+    assert not found, f"import cycles between packages: {found}"
+
+
+def test_package_cycles_are_found():
+    """The check itself: a direct and a three-package cycle are reported, a chain is not."""
+    g = {"backend.a.x": {"backend.b.y"}, "backend.b.y": {"backend.c"}, "backend.c": {"backend.a"},
+         "backend.a": set(), "backend.d.z": {"backend.e.w"}, "backend.e.w": {"backend.d"}, "backend.d": set(),
+         "backend.f": {"backend.a.x"}}
+    assert sorted(cycles(package_graph(g))) == [["backend.a", "backend.b", "backend.c"], ["backend.d", "backend.e"]]
 
 
 def test_commands_do_not_import_commands():

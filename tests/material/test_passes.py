@@ -8,7 +8,7 @@ from backend import variant
 variant.choose()
 
 from backend.capture.model import Frame  # noqa: E402
-from backend.material.passes import ComponentField, component_renders  # noqa: E402
+from backend.render.passes import ComponentField, component_renders  # noqa: E402
 from backend.render.fields import ConstantField  # noqa: E402
 from backend.synth import layout, procedural  # noqa: E402
 

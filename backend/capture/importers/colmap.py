@@ -12,8 +12,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ... import fsio, ply
 from ...errors import InputError, require
-from ...geometry.mesh import Mesh, save_mesh
 from ..format import check_pose
 from ..images import srgb_to_linear
 from ..model import Capture, Frame
@@ -196,6 +196,7 @@ def load(path: Path, workdir: Path | None = None, images: Path | None = None) ->
 
 
 def write_points(path: Path, xyz: np.ndarray, rgb: np.ndarray) -> Path:
-    """Sparse points as a face-less PLY with linear colours (our mesh writer)."""
-    save_mesh(path, Mesh(xyz, np.zeros((0, 3)), srgb_to_linear(rgb / 255.0)))
+    """Sparse points ``xyz`` (N, 3) with 8-bit sRGB colours ``rgb`` (N, 3) as a face-less PLY
+    with linear colours (the layout :func:`backend.geometry.mesh.load_mesh` reads), atomically."""
+    fsio.write_bytes(path, ply.ply_bytes(xyz, colors=srgb_to_linear(rgb / 255.0)))
     return path

@@ -14,6 +14,8 @@ from __future__ import annotations
 import mitsuba as mi
 import numpy as np
 
+from .scene import RenderSettings, SceneRenderer
+
 COMPONENTS = ("full", "diffuse", "specular")
 
 
@@ -39,8 +41,6 @@ def component_renders(mesh, field, frames, environment=None, spp: int = 64, max_
                       seed: int = 900, components=COMPONENTS, env_pixels: np.ndarray | None = None) -> dict:
     """Renders of ``mesh`` with ``field`` at ``frames`` (their cameras and point lights, plus
     ``environment``) for each component: {component: [(H, W, 3) linear RGB per frame]}."""
-    from ..render.scene import RenderSettings, SceneRenderer
-
     renderer = SceneRenderer(mesh, field, [f.camera for f in frames], [f.lights for f in frames], environment,
                              RenderSettings(spp=spp, max_depth=max_depth, integrator="path"), env_pixels=env_pixels)
     out = {}
