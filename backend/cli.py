@@ -1,8 +1,13 @@
 """Command line: ``python -m backend <command> [options]``.
 
 Each command lives in ``backend/commands/<name>.py`` with ``add_arguments(parser)`` and
-``run(args) -> int``; modules load lazily so ``--help`` stays fast. Bad input ends with
-one line on stderr and exit code 2; Ctrl-C or SIGTERM cancels cleanly (exit code 130)."""
+``run(args) -> int``; only the chosen command's module is imported, so ``--help`` stays fast.
+Before importing a command that renders, the cli chooses the Mitsuba variant
+(``--variant``, else ``SFT_VARIANT``, else automatic; :func:`backend.variant.choose`), as
+Mitsuba loads its integrators once a variant is set; the rendering modules then import at
+their tops. ``check``, ``import``, ``demo`` (which runs the others as subprocesses) and
+listing the benchmarks need no Mitsuba. Bad input ends with one line on stderr and exit
+code 2; Ctrl-C or SIGTERM cancels cleanly (exit code 130)."""
 
 from __future__ import annotations
 
@@ -11,7 +16,7 @@ import importlib
 import signal
 import sys
 
-from . import __version__
+from . import __version__, variant
 from .errors import EXIT_BAD_INPUT, InputError
 
 COMMANDS = {
@@ -24,6 +29,20 @@ COMMANDS = {
     "check": "Report whether this interpreter can run the backend (for the Blender add-on).",
     "demo": "Synthesise the built-in procedural object, reconstruct it and print the metrics.",
 }
+
+
+RENDERS = {"synth", "reconstruct", "evaluate", "capture-from-video"}  # and a named benchmark: bench NAME
+
+
+def _positionals(argv: list[str]) -> list[str]:
+    return [a for a in argv if not a.startswith("-")]
+
+
+def needs_variant(argv: list[str]) -> bool:
+    """Whether the command line runs a command whose modules render (and so need the variant
+    chosen before they are imported): a command of ``RENDERS``, or ``bench NAME``."""
+    words = _positionals(argv)
+    return bool(words) and (words[0] in RENDERS or (words[0] == "bench" and len(words) > 1))
 
 
 def _module(name: str):
@@ -50,6 +69,12 @@ def _terminate(signum, frame):
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     signal.signal(signal.SIGTERM, _terminate)
+    try:
+        if needs_variant(argv):
+            variant.choose(variant.requested(argv))  # silent: the command announces it in its events
+    except InputError as err:
+        print(f"error: {err.line()}", file=sys.stderr)
+        return EXIT_BAD_INPUT
     parser = build_parser(argv)
     args = parser.parse_args(argv)
     if not getattr(args, "func", None):

@@ -20,6 +20,7 @@ from pathlib import Path
 from .errors import InputError
 
 _chosen: str | None = None
+_announced = False  # whether a caller's event sink has reported the variant
 MODULES = ["numpy", "mitsuba", "drjit", "pymeshlab", "pycolmap", "OpenEXR", "cholespy", "PIL", "scipy", "av"]
 
 
@@ -52,14 +53,30 @@ def _cuda_works() -> bool:
 
 
 def choose(requested: str | None = None, announce=None) -> str:
-    """Set the Mitsuba variant once per process and return its name."""
-    global _chosen
-    configure_llvm()
-    import mitsuba as mi
+    """Set the Mitsuba variant once per process and return its name.
 
+    Parameters:
+        requested: a variant name; None reads ``SFT_VARIANT``, else picks automatically.
+        announce: an event sink, ``announce("variant", variant=..., llvm=...)``. The first call
+            in the process that gives one announces the variant; the cli chooses it silently
+            before the command runs, so the command's own call reports it as part of its events.
+
+    Raises InputError for an unknown variant, one that cannot start, or a libLLVM < 17."""
+    global _chosen, _announced
     requested = requested or os.environ.get("SFT_VARIANT") or None
-    if _chosen and (requested in (None, _chosen)):
-        return _chosen
+    if not (_chosen and requested in (None, _chosen)):
+        _chosen = _set_variant(requested)
+    if announce and not _announced:
+        _announced = True  # the libLLVM path only where the LLVM backend runs: on CUDA it names nothing in use
+        llvm = {"llvm": os.environ.get("DRJIT_LIBLLVM_PATH")} if _chosen.startswith("llvm") else {}
+        announce("variant", variant=_chosen, **llvm)
+    return _chosen
+
+
+def _set_variant(requested: str | None) -> str:
+    configure_llvm()
+    import mitsuba as mi  # here: importing Mitsuba takes a second, which check, import and --help skip
+
     if requested:
         if requested not in mi.variants():
             raise InputError(None, f"unknown Mitsuba variant '{requested}'",
@@ -80,11 +97,29 @@ def choose(requested: str | None = None, announce=None) -> str:
             raise InputError(None, f"Dr.Jit loaded libLLVM {major}, but it needs libLLVM >= 17",
                              "import backend before drjit/mitsuba, or set DRJIT_LIBLLVM_PATH "
                              "to the libLLVM.so in .venv/lib")
-    _chosen = variant
-    if announce:  # the libLLVM path only where the LLVM backend runs: on CUDA it names nothing in use
-        llvm = {"llvm": os.environ.get("DRJIT_LIBLLVM_PATH")} if variant.startswith("llvm") else {}
-        announce("variant", variant=variant, **llvm)
     return variant
+
+
+def requested(argv: list[str]) -> str | None:
+    """The value of the last ``--variant NAME`` (or ``--variant=NAME``) in ``argv``, else None:
+    the cli reads it before it imports the command that defines the option."""
+    found = None
+    for i, arg in enumerate(argv):
+        if arg == "--variant" and i + 1 < len(argv):
+            found = argv[i + 1]
+        elif arg.startswith("--variant="):
+            found = arg.partition("=")[2]
+    return found
+
+
+def require(package: str) -> None:
+    """Raise a one-line RuntimeError unless a Mitsuba variant is set: ``package`` (its modules
+    define Mitsuba plugins and read variant types when imported) cannot load without one."""
+    import mitsuba as mi  # here: only the rendering packages call this, and they load Mitsuba anyway
+
+    if mi.variant() is None:
+        raise RuntimeError(f"{package} needs a Mitsuba variant: call backend.variant.choose() before "
+                           "importing it (python -m backend does so for the commands that render)")
 
 
 @functools.lru_cache(maxsize=1)

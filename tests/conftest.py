@@ -1,4 +1,7 @@
-"""Fixtures shared by every test folder (helpers live in tests/helpers.py)."""
+"""Fixtures shared by every test folder (helpers live in tests/helpers.py).
+
+The Mitsuba variant is chosen once here, for the whole test process, as the cli chooses it
+for a command: modules that render import Mitsuba's variant types at their tops."""
 
 from __future__ import annotations
 
@@ -8,8 +11,10 @@ import pytest
 
 import bpy  # noqa: F401  (bpy must load before pymeshlab: both ship an Embree 4)
 
-import backend  # noqa: F401  (points Dr.Jit at libLLVM >= 17 before any test imports drjit)
+from backend import variant  # points Dr.Jit at libLLVM >= 17 before any test imports drjit
 from tests.helpers import run_cli
+
+variant.choose()
 
 
 @pytest.fixture(scope="session")

@@ -42,12 +42,13 @@ from ..geometry.init import initial_mesh
 from ..geometry.mesh import Mesh, load_mesh, save_mesh
 from ..geometry.topology import keep_largest_components
 from ..material.model import MeshColorMaterial
-from ..render.passes import component_renders
 from ..material.transfer import locate
 from ..metrics.geometry import corresponding_albedo, geometry_metrics
 from ..metrics.image import albedo_rmse, image_metrics
 from ..optimize.run_folder import RunFolder
 from ..render.fields import VertexField
+from ..render.passes import component_renders
+from ..render.views import display_field
 from ..synth.capture import SynthSpec, synthesize
 from ._data import SHARED_DATA
 
@@ -164,8 +165,6 @@ def _scores(rendered: dict, truth: dict, masks) -> dict:
 
 def evaluate(name: str, capture, run: Path, spec) -> dict:
     """Table rows for one mesh: initialisation and reconstruction."""
-    from ..render.views import display_field  # render/ needs the Mitsuba variant chosen first
-
     report = json.loads((run / "report.json").read_text())
     truth = load_mesh(capture.path(capture.ground_truth["mesh"]))
     truth_field = VertexField(truth.faces, truth.vertex_colors, truth.attributes["specular"],

@@ -13,6 +13,7 @@ the repository's requirements.txt installs it for the test of this path."""
 
 from __future__ import annotations
 
+import pickle
 from pathlib import Path
 
 from .. import variant as variants
@@ -32,11 +33,13 @@ def require_ray():
     return ray
 
 
-def _measure(measure, scene: str, capture: str, setting, out: str, repeats: int, repeat_under: float, variant,
+def _measure(job: bytes, scene: str, capture: str, out: str, repeats: int, repeat_under: float, variant,
              eval_spp: int, seed: int) -> dict:
-    """One sweep run inside a Ray worker (module level: workers import it by name):
-    ``measure`` is sweep.measure (passed by reference, so this module does not import sweep)."""
-    variants.choose(variant)  # the worker scores the result with Mitsuba, as the driver would
+    """One sweep run inside a Ray worker (module level: workers import it by name): ``job`` is
+    the pickled (sweep.measure, Setting), unpickled once the worker has chosen the variant, as
+    importing sweep loads the renderers (and this module does not import sweep)."""
+    variants.choose(variant)  # the worker's process boundary: it scores the result with Mitsuba
+    measure, setting = pickle.loads(job)
     return measure(scene, Path(capture), setting, Path(out), repeats, repeat_under, variant, eval_spp, seed)
 
 
@@ -48,7 +51,7 @@ def run_tasks(ray, measure, todo: list[tuple[str, Path, object]], args, on_row) 
         ray.init(address=address, include_dashboard=False, log_to_driver=False,
                  runtime_env={"env_vars": {"PYTHONPATH": str(REPO)}})
     task = ray.remote(num_cpus=args.cpus_per_run)(_measure)
-    pending = {task.remote(measure, scene, str(capture), setting, str(Path(args.out).resolve()), args.repeats,
+    pending = {task.remote(pickle.dumps((measure, setting)), scene, str(capture), str(Path(args.out).resolve()), args.repeats,
                            args.repeat_under, args.variant, args.eval_spp, args.seed): (scene, setting)
                for scene, capture, setting in todo}
     done = 0

@@ -12,6 +12,7 @@ from ..capture.model import Camera, Capture, Frame, PointLight
 from ..geometry.mesh import Mesh, save_mesh
 from ..geometry.raycast import RayCaster
 from ..render.fields import ConstantField
+from ..render.scene import RenderSettings, SceneRenderer
 from ..synth.layout import look_at
 from ..synth.procedural import icosphere
 
@@ -63,8 +64,6 @@ def render_capture(out: Path, mesh: Mesh, frames: list[tuple[Camera, list[PointL
                    roughness: float, spp: int = 64, seed: int = 0) -> Capture:
     """Render ``mesh`` (constant material, point lights, black background) into a capture
     folder with masks and ``gt/mesh.ply`` as ground truth."""
-    from ..render.scene import RenderSettings, SceneRenderer  # render/ needs the Mitsuba variant chosen first
-
     out = Path(out)
     field = ConstantField(albedo, specular, roughness)
     cams = [c for c, _ in frames]

@@ -29,6 +29,7 @@ from ..capture.images import write_image, write_mask
 from ..capture.model import Capture, Environment, Frame
 from ..geometry.mesh import Mesh, save_mesh
 from ..render.fields import VertexField
+from ..render.scene import RenderSettings, SceneRenderer
 from ..synth import layout, procedural
 from ..synth.capture import SynthSpec, synthesize
 from ._data import SHARED_DATA as SHARED
@@ -135,8 +136,6 @@ def build_corner(out: Path, emit, views: int = 24, held_out: int = 4, resolution
     """The corner capture: training views under camera-mounted point lights (the paper's
     layout), held-out views likewise, relit views under the second procedural sky alone.
     Rendered with ``max_depth`` path vertices, so the interreflections are all there."""
-    from ..render.scene import RenderSettings, SceneRenderer  # render/ needs the Mitsuba variant chosen first
-
     mesh, albedo = corner_mesh()
     spec_v = np.full(mesh.n_vertices, specular, np.float32)
     rough_v = np.full(mesh.n_vertices, roughness, np.float32)

@@ -45,6 +45,8 @@ from ..lighting import fitted
 from ..lighting.setup import MAP_FRAME
 from ..metrics.image import psnr
 from ..optimize.views import ViewSet
+from ..render.scene import RenderSettings, SceneRenderer
+from ..render.views import display_field
 from ._data import SHARED_DATA
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -97,9 +99,6 @@ def render_rows(capture_dir: Path, run_dir: Path, size: int, spp: int, fitted_ro
     """The contact sheet's rows: held-out frames (those the run's report names) first, then up
     to ``fitted_rows`` fitted ones spread over the capture; each with photo, render, PSNR."""
     variant.choose()
-    from ..render.scene import RenderSettings, SceneRenderer  # render/ needs the variant chosen first
-    from ..render.views import display_field
-
     capture = load_capture(capture_dir)
     report = json.loads((run_dir / "report.json").read_text())
     held = set((report.get("accuracy_time") or {}).get("held_out_views") or [])

@@ -39,9 +39,12 @@ from ..capture.model import Environment
 from ..geometry.mesh import Mesh, load_mesh
 from ..geometry.simplify import simplify
 from ..material.constant import ConstantMaterial
+from ..optimize.objective import Objective
 from ..optimize.steps import LaplacianSystem, clip_outliers
 from ..optimize.views import View
+from ..render import effects, projective  # noqa: F401  (registers the sft_ integrators)
 from ..render.fields import ConstantField
+from ..render.scene import RenderSettings, SceneRenderer
 from ..synth import layout
 
 SHARED = Path(os.environ.get("SFT_SHARED_DATA", "/work/shared/data"))
@@ -137,11 +140,6 @@ def add_arguments(parser) -> None:
 
 class _Bench:
     def __init__(self, args):
-        # here: render/ and the objective need the Mitsuba variant chosen first
-        from ..optimize.objective import Objective
-        from ..render import effects, projective  # noqa: F401  (registers the sft_ integrators)
-        from ..render.scene import RenderSettings, SceneRenderer
-
         self.args = args
         truth, self.estimate, cams, self.env, self.pixels, self.step_move, self.edge = build_scene(args)
         self.truth_faces = truth.n_faces

@@ -30,6 +30,7 @@ from ..material.model import MeshColorMaterial
 from ..metrics.geometry import corresponding_albedo
 from ..metrics.image import albedo_rmse, image_metrics
 from ..render.fields import VertexField
+from ..render.scene import RenderSettings, SceneRenderer
 from ..synth.capture import SynthSpec, synthesize
 from . import _material_table
 from ._data import SHARED_DATA
@@ -114,8 +115,6 @@ def _views(capture):
 
 
 def _renders(mesh, field, view_set, spp: int, max_depth: int, seed: int = 900) -> list[np.ndarray]:
-    from ..render.scene import RenderSettings, SceneRenderer  # render/ needs the Mitsuba variant chosen first
-
     env = view_set.environment
     pixels = read_rgba(env.path)[0][..., :3] if env else None
     renderer = SceneRenderer(mesh, field, [f.camera for f in view_set.frames],
@@ -125,8 +124,6 @@ def _renders(mesh, field, view_set, spp: int, max_depth: int, seed: int = 900) -
 
 
 def benchmark(spec: MaterialBench, out: Path, emit) -> dict:
-    from ..render.scene import RenderSettings, SceneRenderer  # render/ needs the Mitsuba variant chosen first
-
     start = time.time()
     capture = synthetic_capture(spec, out, emit)
     truth = load_mesh(capture.path(capture.ground_truth["mesh"]))

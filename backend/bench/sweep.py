@@ -42,6 +42,7 @@ from ..geometry.mesh import Mesh, load_mesh
 from ..metrics.image import image_metrics
 from ..optimize.config import ReconstructConfig
 from ..optimize.presets import PRESETS
+from ..render.views import render_views
 from . import _all, _report
 from ._machine import REPO, code_version, machine, machine_line  # noqa: F401  (bench/effects imports them from here)
 from ._ray import require_ray, run_tasks
@@ -175,8 +176,6 @@ def view_scores(run: Path, capture, spp: int = 128) -> dict:
     """PSNR/SSIM of the run's result, rendered with its material, at the capture's ground-truth
     held-out ("novel") and relit views, on the object's masks; path traced with as many
     vertices as the capture was. Empty when the capture has no such views."""
-    from ..render.views import render_views  # render/ needs the Mitsuba variant chosen first
-
     mesh = result_display(run)
     prov = capture.provenance or {}
     max_depth = int(prov.get("spec", {}).get("max_depth") or prov.get("max_depth") or 4)

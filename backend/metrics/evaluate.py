@@ -29,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import fsio, variant
+from .. import fsio
 from ..capture.format import FILENAME
 from ..capture.images import read_linear_rgb, read_mask, write_image
 from ..capture.load import load_capture
@@ -37,6 +37,9 @@ from ..errors import InputError, require
 from ..geometry.mesh import Mesh, load_mesh
 from ..lighting import fitted
 from ..material.transfer import carry_vertex_material
+from ..render.fields import VertexField
+from ..render.passes import component_renders
+from ..render.views import display_field, render_views
 from . import geometry as geo
 from .image import albedo_rmse, image_metrics
 
@@ -153,9 +156,6 @@ def _run_view_metrics(report: dict, run: Path, capture, gt: Mesh, samples: int, 
     """For a run folder: render its final display mesh (which carries the material) at the
     truth's held-out views under the lighting the run fitted (backend.lighting.fitted) and at
     its relit views under their own map, into RUN/renders/<set>/, and score them and its albedo."""
-    variant.choose()
-    from ..render.views import render_views  # render/ needs the Mitsuba variant chosen first
-
     display = _mesh(run / json.loads((run / "snapshot.json").read_text())["mesh"], "display")
     if display.vertex_colors is not None and gt.vertex_colors is not None and "albedo" not in report:
         pa, ga = geo.corresponding_albedo(display, gt, samples, seed)
@@ -226,8 +226,6 @@ def has_specular_lobe(mesh: Mesh) -> bool:
 
 def _material_of(mesh: Mesh):
     """The truth's material as a field, or None when its mesh does not carry one."""
-    from ..render.fields import VertexField  # after variant.choose() (render/ needs it)
-
     if mesh.vertex_colors is None or not all(k in mesh.attributes for k in ("specular", "roughness")):
         return None
     return VertexField(mesh.faces, mesh.vertex_colors, mesh.attributes["specular"], mesh.attributes["roughness"])
@@ -237,9 +235,6 @@ def _component_metrics(display: Mesh, gt: Mesh, views, truth_views, spp: int = 6
     """PSNR/SSIM of the diffuse-only and specular-only passes of ``display`` (under the run's
     lighting, ``views``) against the same passes of the truth (under the capture's,
     ``truth_views``), both rendered now with the same seeds at the same frames."""
-    from ..render.passes import component_renders  # after variant.choose(), as above
-    from ..render.views import display_field
-
     components = ("diffuse", "specular")
     kw = dict(spp=spp, max_depth=max_depth, components=components)
     predicted = component_renders(display, display_field(display), views.frames, views.environment, **kw)

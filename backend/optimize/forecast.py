@@ -40,6 +40,12 @@ from pathlib import Path
 
 import numpy as np
 
+from ..geometry.init import initial_mesh
+from . import accuracy
+from .appearance import Appearance
+from .presets import lighting_kind
+from .views import ViewSet
+
 SPREAD_FLOOR_DB = 1.0  # a run's held-out PSNR moves by up to about this much run to run: no narrower promise
 PROBE_CYCLES = 8  # most material cycles the probe runs (the constant stage ends sooner: MaterialSchedule)
 GAINS_FILE = Path(__file__).resolve().parents[1] / "forecast.json"  # written by ``bench plan --calibrate``
@@ -54,12 +60,6 @@ def probe(capture, config, held=None, mesh=None) -> dict | None:
     the run's own, when it was made so with the probe's settings). Returns
     {"psnr", "seconds", "views", "source", "cycles", "faces", "size" (the scored images' long
     side, px), "lighting_kind"}."""
-    from ..geometry.init import initial_mesh  # these need the Mitsuba variant chosen (the plan's caller does)
-    from . import accuracy
-    from .appearance import Appearance
-    from .presets import lighting_kind
-    from .views import ViewSet
-
     if config.material != "staged":
         return None
     start = time.perf_counter()

@@ -24,9 +24,12 @@ from ..errors import InputError, require
 from ..events import Emitter, read_log
 from ..lighting.setup import resolve_lighting
 from ..video.inputs import check_inputs, write_capture
+from .appearance import Appearance
 from .config import STAGED_FACE_GROWTH, ReconstructConfig
+from .forecast import probe
 from .plan import capture_plan, make_plan
 from .presets import DEFAULT, PRESETS, calibrated, calibration_scene, lighting_kind, preset_for_budget
+from .run import reconstruct, reported
 from .run_folder import RunFolder
 
 OVERRIDES = ("init", "material", "effects", "initial_faces", "iterations", "seed", "max_size", "coarse_size", "views_per_step",
@@ -157,9 +160,6 @@ def run(args) -> int:
     if choose_preset(args) != before:  # a time budget's preset, by the capture's kind of lighting
         config = dataclasses.replace(config_from_args(args), lighting=config.lighting)
     chosen = variant.choose(args.variant)
-    from .appearance import Appearance  # these need the Mitsuba variant chosen just above
-    from .run import reconstruct, reported
-
     if capture is not None:
         Appearance.check(capture, config)
     if getattr(args, "plan", False):
@@ -190,8 +190,6 @@ def _print_plan(args, capture, lighting: str) -> int:
     """--plan: each preset's predicted time on this capture (optimize/plan.py), printed; no run."""
     require(capture is not None, args.capture, "--plan needs a capture folder",
             "write the capture first (capture-from-video), then plan on it")
-    from .forecast import probe  # needs the Mitsuba variant (chosen by the caller)
-
     probed = safe_probe(probe, capture, probe_config(args, lighting), warn=lambda m: print(f"warning: {m}", flush=True))
     plan = capture_plan(capture, _preset_configs(args, PRESETS), calibrated(kind=lighting_kind(capture, lighting)),
                         probe=probed)
@@ -246,8 +244,6 @@ def _preset_event(args, emit, config, capture):
         expected = entries.get(preset, {})
         plan = None
         if settings is not None:
-            from .forecast import probe  # the planner runs once the variant is chosen
-
             probing = probe_config(args, config.lighting)
             same = (probing.init, probing.initial_faces) == (config.init, config.initial_faces)
             probed = safe_probe(probe, capture, probing, held, warn=lambda m: emit("warning", message=m),

@@ -9,6 +9,7 @@ import json
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
+import mitsuba as mi
 import numpy as np
 
 from .. import __version__, fsio, variant
@@ -16,6 +17,8 @@ from ..capture.format import save_capture
 from ..capture.images import read_rgba, write_image, write_mask
 from ..capture.model import Camera, Capture, Environment, Frame
 from ..geometry.mesh import Mesh, load_mesh, save_mesh
+from ..render.fields import VertexField
+from ..render.scene import RenderSettings, SceneRenderer
 from . import layout, procedural
 
 Y_UP_TO_Z_UP = np.array([[1.0, 0, 0, 0], [0, 0, -1, 0], [0, 1, 0, 0], [0, 0, 0, 1]])
@@ -73,7 +76,6 @@ def _environment_pixels(name: str, which: int) -> np.ndarray:
 
 def cornell_shapes(centre: np.ndarray, half: float) -> dict:
     """A room around the cameras: red wall at -x, green at +x, white elsewhere."""
-    import mitsuba as mi
 
     def wall(name, normal, colour):
         n = np.asarray(normal, float)
@@ -108,9 +110,6 @@ def _write_view_set(root: Path, renderer, masker, cameras: list[Camera], lights,
 
 def synthesize(spec: SynthSpec, out: Path, emit) -> Capture:
     """Render the capture into ``out`` (an empty folder; the caller makes it atomic)."""
-    from ..render.fields import VertexField  # here: render/ loads Mitsuba, which a variant must precede
-    from ..render.scene import RenderSettings, SceneRenderer
-
     mesh = load_spec_mesh(spec)
     lo, hi = mesh.bounds()
     centre, radius = 0.5 * (lo + hi), 0.5 * float(np.linalg.norm(hi - lo))

@@ -12,12 +12,12 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import fsio, variant
-from ..capture.load import load_capture
+from .. import fsio
 from ..capture.convert import convert
 from ..capture.format import save_capture
 from ..capture.images import read_mask, read_rgba, write_mask
 from ..capture.importers.common import opencv_camera
+from ..capture.load import load_capture
 from ..capture.model import Capture, Environment, Frame
 from ..capture.undistort import needs_resampling, pinhole, resample
 from ..capture.validate import validate_environment
@@ -25,6 +25,7 @@ from ..errors import require
 from ..geometry.init.carve import carve
 from ..geometry.init.hull import HullConfig
 from ..geometry.mesh import Mesh, save_mesh
+from ..lighting.align import align_lighting
 from .frames import Source, check_masks, open_source, pick_frames
 from .scene_frame import scene_frame
 from .sfm import SfmOptions, SfmResult, solve
@@ -141,9 +142,6 @@ def write_capture(inputs: VideoInputs, out: Path, emit, overwrite: bool = False)
 def align_capture_lighting(capture: Capture, rotation_z_deg: float | None, emit) -> None:
     """Estimate the environment's rotation (unless given) and strength against the masks' visual
     hull, and record them (provenance "estimated") with the loss curve in the capture."""
-    from ..lighting.align import align_lighting  # here: loads Mitsuba, only once a variant is chosen
-
-    variant.choose()
     emit("stage", stage="lighting")
     hull = carve(capture, HULL_FACES, HullConfig(grid=HULL_GRID))
     env = capture.environment

@@ -1,11 +1,14 @@
-"""Backend layering, read from the source (ast): no import cycle between modules, no command
-importing another command nor any other module importing a command, commands kept thin
-(argparse, one library call, an exit code), ``geometry`` free of ``render`` and ``synth``, and
-a module over 400 lines saying why at its top."""
+"""Backend layering, read from the source (ast): no import cycle between modules nor between
+top-level packages, no command importing another command nor any other module importing a
+command, commands kept thin (argparse, one library call, an exit code), ``geometry`` free of
+``render`` and ``synth``, a function-level import of the project's own modules giving its
+reason (never the Mitsuba variant, which the cli chooses first), and a module over 400 lines
+saying why at its top."""
 
 from __future__ import annotations
 
 import ast
+import re
 from pathlib import Path
 
 BACKEND = Path(__file__).resolve().parents[2] / "backend"
@@ -191,6 +194,62 @@ def test_geometry_does_not_import_render_or_synth():
     bad = [(m, t) for m, ts in graph().items() if m.startswith("backend.geometry")
            for t in ts if t.startswith(("backend.render", "backend.synth"))]
     assert not bad, f"geometry importing render/synth: {bad}"
+
+
+def _reason(line: str) -> str:
+    """The words of the comment on ``line`` with any ``noqa: CODES`` marker left out."""
+    comment = line.partition("#")[2] if "#" in line else ""
+    return re.sub(r"noqa(:\s*[A-Z]+[0-9]+(,\s*[A-Z]+[0-9]+)*)?", "", comment).strip(" ()")
+
+
+def local_imports() -> dict[str, list[tuple[int, str]]]:
+    """{module path: [(line, reason)]} for each import of a backend module inside a def, with
+    the reason its comment gives on that line or the comment line above ('' when none); an
+    import right below another shares its reason (a group under one comment)."""
+    out = {}
+    for name, path in modules().items():
+        lines = path.read_text(encoding="utf-8").splitlines()
+        tree = ast.parse("\n".join(lines))
+        sites = {}
+        for fn in ast.walk(tree):
+            if not isinstance(fn, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                continue
+            for node in ast.walk(fn):
+                own = (isinstance(node, ast.ImportFrom) and (node.level or (node.module or "").startswith("backend"))) \
+                    or (isinstance(node, ast.Import) and any(a.name.startswith("backend") for a in node.names))
+                if own:
+                    above = lines[node.lineno - 2].strip() if node.lineno > 1 else ""
+                    reason = _reason(lines[node.lineno - 1]) or (_reason(above) if above.startswith("#") else "")
+                    sites[node.lineno] = (node.end_lineno, reason)
+        ends = {end: reason for end, reason in sites.values()}
+        for n in sorted(sites):  # in line order, so a group's reason flows down it
+            end, reason = sites[n]
+            if not reason and ends.get(n - 1):
+                sites[n] = (end, ends[n - 1])
+                ends[end] = ends[n - 1]
+        if sites:
+            out[str(path.relative_to(BACKEND.parent))] = [(n, r) for n, (_, r) in sorted(sites.items())]
+    return out
+
+
+VARIANT_REASON = re.compile(r"variant", re.IGNORECASE)
+LOCAL_IMPORTS_ELSEWHERE = ("backend/optimize/", "backend/planning/", "backend/lighting/", "backend/bench/")
+
+
+def unexplained_local_imports(skip: tuple[str, ...] = ()) -> list[str]:
+    """``path:line`` of function-level imports of backend modules with no reason, or with the
+    variant as their reason (modules import at their tops once the cli has chosen it)."""
+    return [f"{p}:{n}" + (f" ({r})" if r else " (no reason)") for p, sites in sorted(local_imports().items())
+            if not p.startswith(skip) for n, r in sites if not r or VARIANT_REASON.search(r)]
+
+
+def test_function_level_imports_give_a_reason():
+    """A project import inside a def says why on its line or the comment line above: an
+    optional part absent from the extension, a heavy import kept off a fast path (--help,
+    check), a module that imports this one. "The Mitsuba variant" is no reason: the cli (and
+    tests/conftest.py) choose it before anything renders, so such imports belong at the top."""
+    bad = unexplained_local_imports(skip=LOCAL_IMPORTS_ELSEWHERE)
+    assert not bad, f"function-level imports without a reason, or with the variant as it: {bad}"
 
 
 MODULE_LINES = 400  # the size a module is read at in one sitting; a longer one says why at its top

@@ -13,6 +13,7 @@ import numpy as np
 from ...geometry.mesh import Mesh, load_mesh
 from ...geometry.topology import inspect
 from ...material import factory
+from ...optimize.objective import Objective
 from ...optimize.run_folder import RunFolder
 from .results import StepLog
 
@@ -61,8 +62,6 @@ def recorder(inject_nan: set[int] = frozenset(), track_tangles: bool = False):
     outputs (loss, gradients), and otherwise defers to the real objective. ``inject_nan``:
     step indices whose gradient gets a NaN, as a renderer fault would (the loop must skip
     them); ``track_tangles``: count self-intersecting faces at every step (small meshes)."""
-    from ...optimize.objective import Objective  # here: it needs the Mitsuba variant chosen first
-
     log = StepLog()
 
     class RecordingObjective(Objective):

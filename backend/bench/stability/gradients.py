@@ -11,8 +11,10 @@ import numpy as np
 from ... import variant
 from ...material.constant import ConstantMaterial
 from ...material.model import MeshColorMaterial
+from ...optimize.objective import Objective
 from ...optimize.views import View
 from ...render.fields import ConstantField
+from ...render.scene import RenderSettings, SceneRenderer
 from ...synth.procedural import blob, icosphere
 from .results import GRADIENT_TOLERANCE, KNOWN, Result
 from .scenes import lamp_lights, orbit
@@ -21,8 +23,6 @@ from .scenes import lamp_lights, orbit
 # -- gradients against finite differences ------------------------------------------------------------------
 def _target_views(count: int = 2):
     """The blob at 32 px from ``count`` cameras, each under its own lamp: the loss's targets."""
-    from ...render.scene import RenderSettings, SceneRenderer  # render/ needs the Mitsuba variant chosen first
-
     cams = orbit(count, 32)
     lights = lamp_lights(cams)
     truth = SceneRenderer(blob(3), ConstantField(0.6, 0.2, 0.4), cams, lights, settings=RenderSettings(spp=64),
@@ -50,9 +50,6 @@ def gradient_geometry(work: Path, quick: bool) -> Result:
     masked loss) against central finite differences of the same loss along smooth
     displacement fields: translations along x, y, z and a bump along the normals."""
     variant.choose()
-    from ...optimize.objective import Objective  # here: these need the variant chosen just above
-    from ...render.scene import RenderSettings
-
     start = time.perf_counter()
     result = Result("gradient_geometry")
     mesh = icosphere(3, 0.5)
@@ -80,9 +77,6 @@ def gradient_meshcolors(work: Path, quick: bool) -> Result:
     central finite differences at 1024 spp along random latent directions, per channel and
     all together."""
     variant.choose()
-    from ...optimize.objective import Objective  # here: these need the variant chosen just above
-    from ...render.scene import RenderSettings
-
     start = time.perf_counter()
     result = Result("gradient_meshcolors")
     mesh = icosphere(2, 0.5)

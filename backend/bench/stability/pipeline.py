@@ -19,6 +19,7 @@ from ...events import Emitter
 from ...geometry.mesh import load_mesh, save_mesh
 from ...geometry.topology import inspect
 from ...optimize.config import ReconstructConfig
+from ...optimize.run import reconstruct as run_reconstruction
 from ...optimize.run_folder import RunFolder
 from .checks import read_events, recorder, run_folder_problems
 from .results import KNOWN, Result, StepLog
@@ -107,8 +108,6 @@ def reconstruct(capture_dir: Path, run_dir: Path, settings, material=None, **rec
     """Run the reconstruction loop in this process as the command does, recording every step.
     Returns (exit code or the InputError raised, StepLog)."""
     variant.choose()
-    from ...optimize.run import reconstruct as run_reconstruction  # here: it needs the variant chosen just above
-
     folder = RunFolder.create(run_dir, resume=False, overwrite=False)
     emit = Emitter(log_path=folder.events, quiet=True)
     log, objective = recorder(**record)

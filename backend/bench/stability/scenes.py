@@ -16,6 +16,7 @@ from ...capture.model import Camera, Capture, Environment, Frame, PointLight
 from ...geometry.mesh import Mesh
 from ...material.model import MeshColorMaterial
 from ...render.fields import ConstantField
+from ...render.scene import RenderSettings, SceneRenderer
 from ...synth.layout import fibonacci_sphere, look_at, orbit_cameras
 from ...synth.procedural import blob, icosphere
 from .._scenes import torus
@@ -39,8 +40,6 @@ class Scene:
         """Render the capture into ``out`` (images, masks, capture.json; no ground truth, so the
         loop spends no time on metrics)."""
         variant.choose()
-        from ...render.scene import RenderSettings, SceneRenderer  # here: it needs the variant chosen just above
-
         out = Path(out)
         env = None
         if self.env_pixels is not None:
