@@ -2,21 +2,12 @@
 each one constant per material or *mesh colors* (Yuksel et al. 2010), so no UV map is needed
 while the mesh keeps changing.
 
-- ``meshcolors``: the shared-sample layout (vertex and edge samples shared, interior samples
-  per face; ``table`` maps the paper's per-triangle index t K + k into it), numpy lookup.
-- ``field``: the Dr.Jit lookup (``MeshColorsField.lookup(si, active)``) with sigmoid
-  reparameterised latents, exact gradients through ``dr.gather``.
-- ``base``: ``Material``, the interface every material model offers the loop.
-- ``constant``: ``ConstantMaterial``, one albedo, specular and roughness for the surface.
-- ``model``: ``MeshColorMaterial``, constants per material or mesh colors.
-- ``factory``: the one place a model is chosen (``--material``, or the kind a save stores).
-- ``labels``: material masks checked before any work, clustering, per-face majority vote.
-- ``stages``: the optimisation stages (constants, textured diffuse with highlight masking and
-  the environment brightness factor, textured specular).
-- ``schedule``: ``MaterialSchedule`` (which stage runs next) and ``run_cycle``.
-- ``export``: baked texture atlas and ``write_glb`` (glTF 2.0 with KHR_materials_specular).
-
-- ``driver``: ``MaterialDriver``, the four calls the reconstruction loop makes.
+``base`` is the interface the loop sees (``Material``), ``constant`` and ``model`` its two
+models, ``factory`` the one place a model is chosen; ``meshcolors`` (numpy) and ``field``
+(Dr.Jit) hold the shared-sample layout and its differentiable lookup; ``labels`` the
+material masks; ``stages`` and ``schedule`` the optimisation stages and their order;
+``driver`` the four calls the reconstruction loop makes; ``export`` the baked atlas and
+``write_glb``. Component (diffuse-only, specular-only) renders are :mod:`backend.render.passes`.
 
 Typical use by the loop (see ``driver``)::
 

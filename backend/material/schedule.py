@@ -60,8 +60,8 @@ class MaterialSchedule:
         """Geometry has converged: the textured stages run once more on the final surface, each
         until ``patience`` cycles stop improving. Textures that reached their ``last`` stage
         ("diffuse" without a specular lobe) run it again; the specular stage fits every channel,
-        highlights included, and a final diffuse cycle before it (highlights masked) was always
-        undone."""
+        highlights included, so no final diffuse cycle (highlights masked) precedes it: the
+        specular stage would undo it."""
         if self.final:
             return
         self.final = True
@@ -71,8 +71,8 @@ class MaterialSchedule:
 
     def refine(self, stage: str = "specular", cycles: int = 1) -> None:
         """The geometry moved under the finished material: its last stage (the specular stage
-        fits every channel, highlights included) runs again for ``cycles`` (a second cycle
-        was always undone)."""
+        fits every channel, highlights included) runs again for ``cycles`` (one by default: a
+        second undoes the first)."""
         self.stage, self.cycle, self.stale, self.best, self.patience = stage, 0, 0, math.inf, 1
         self.cycle_limit = cycles
 

@@ -16,7 +16,7 @@ relative threshold:
   bounce are each timed in geometry steps and their share of the step's smoothed gradient is
   measured against the decision without them (:mod:`backend.optimize.effect_costs`); each is
   on when the bias it removes is worth the share of steps it costs. Point-lit captures keep the
-  need tests above (their calibrated figures were measured with them).
+  need tests above (the presets' calibration assumes them).
 - **specular lobe**: how much brighter the targets are, relative to diffuse shading, where a
   unit-specular render says highlights would be than in the pixels just around them.
 - **silhouette gradients**: projective integrators only while geometry is optimised.
