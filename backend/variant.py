@@ -1,8 +1,11 @@
-"""Choose and load the Mitsuba variant.
+"""Choose and load the Mitsuba variant, once per process, at its entry point.
 
 ``cuda_ad_rgb`` when a CUDA device works, else ``llvm_ad_rgb``. Override with the
-``--variant`` option or the ``SFT_VARIANT`` environment variable. Dr.Jit's LLVM backend
-needs libLLVM >= 17; the one shipped in the virtual environment is used when present.
+``--variant`` option or the ``SFT_VARIANT`` environment variable. The cli calls
+:func:`choose` before it imports a command that renders (as Mitsuba imports its integrators
+once a variant is set), ``tests/conftest.py`` for the tests, a benchmark's Ray worker on
+start; :func:`require` is the check ``backend.render`` makes when imported. Dr.Jit's LLVM
+backend needs libLLVM >= 17; the one shipped in the virtual environment is used when present.
 Dr.Jit reads ``DRJIT_LIBLLVM_PATH`` when it is first imported, so ``backend/__init__``
 configures it before anything imports drjit. :func:`readiness` is the ``check`` command's
 report: whether this interpreter can run the backend at all."""
@@ -45,7 +48,7 @@ def configure_llvm() -> None:
 
 
 def _cuda_works() -> bool:
-    import drjit as dr
+    import drjit as dr  # here: only when a variant is being chosen (check and --help load no Dr.Jit)
     try:
         return bool(dr.has_backend(dr.JitBackend.CUDA))
     except Exception:
