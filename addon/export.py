@@ -20,9 +20,9 @@ from pathlib import Path
 import bpy
 import numpy as np
 
-from .errors import AddonInputError, require
-from .files import write_atomic
-from .ply import read_display_mesh
+from .io.errors import AddonInputError, require
+from .io.files import write_atomic
+from .io.ply import read_display_mesh
 from .preview import cycles_device
 from .scene_mesh import COLOR_ATTRIBUTE, SOURCE_PROPERTY, reconstruction_material, shows
 

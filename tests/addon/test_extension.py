@@ -57,10 +57,10 @@ def test_addon_never_imports_heavy_libraries():
 def test_default_preset_calibration_shown(extension, context):
     from importlib import import_module
 
-    presets = import_module(f"{extension.__name__}.addon.presets")
-    calib = presets.calibration()
+    preset_file = import_module(f"{extension.__name__}.addon.io.preset_file")
+    calib = preset_file.calibration()
     expected = "not calibrated" if not (REPO / "backend" / "presets.json").is_file() else None
-    text = presets.describe("balanced", calib)
+    text = preset_file.describe("balanced", calib)
     assert context.scene.sft.preset == "auto"  # the preset that fits the time budget
     assert text == expected if expected else text
 

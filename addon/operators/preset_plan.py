@@ -6,8 +6,9 @@ from pathlib import Path
 
 import bpy
 
-from .. import interpreter, jobs
-from ..errors import AddonInputError, require
+from .. import jobs
+from ..io import interpreter
+from ..io.errors import AddonInputError, require
 from ..preferences import backend_python
 from .common import capture_dir, has_backend, idle
 from .modal import CancelJob, JobModal
