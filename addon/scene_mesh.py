@@ -3,8 +3,9 @@
 Colours are a point-domain colour attribute ``albedo`` (linear); ``specular`` and
 ``roughness`` are float point attributes; shading normals, when the snapshot has them, are
 Blender's point-domain ``custom_normal`` attribute (free normals). The material reads the
-attributes as the backend's BSDF: albedo / pi plus specular * D G / (4 cos cos) with GGX alpha = roughness^2, which is a
-Diffuse BSDF added to a Glossy BSDF (GGX, no Fresnel) in Cycles."""
+attributes as the backend's BSDF: albedo / pi plus specular * D G / (4 cos cos) with GGX
+alpha = roughness^2, which is a Diffuse BSDF added to a Glossy BSDF (GGX, no Fresnel) in
+Cycles."""
 
 import bpy
 import numpy as np

@@ -54,17 +54,17 @@ def enum_items(calib: dict) -> tuple[tuple[str, str, str], ...]:
 
 
 def kind_for(lighting: str, env_path: str = "") -> str:
-    """The calibration kind a capture is promised, as the backend decides it
-    (the backend's ``lighting_kind``): 'environment' when a map lights it (an
-    imported HDR, or one the run estimates), else 'point' (the capture's lights, a flash)."""
+    """The calibration kind a capture is promised, decided as the backend's ``lighting_kind``
+    does: 'environment' when a map lights it (an imported HDR, or one the run estimates),
+    else 'point' (the capture's lights, a flash)."""
     if lighting in ("ESTIMATE", "RIG") or (lighting == "CAPTURED" and env_path):
         return "environment"
     return "point"
 
 
 def kind_calibration(calib: dict, kind: str) -> tuple[dict, str]:
-    """(entries, what they were measured on) for ``kind``: its own calibration when the file
-    has one, else the point-lit one with a warning for an HDR-lit capture."""
+    """(entries, what they were measured on) for ``kind``: its own calibration when the
+    file has one, else the point-lit one with a warning for an HDR-lit capture."""
     own = (calib.get("kinds") or {}).get(kind) if calib else None
     if isinstance(own, dict) and isinstance(own.get("presets"), dict):
         doc = {**own, "machine": calib.get("machine")}

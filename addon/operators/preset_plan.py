@@ -1,6 +1,6 @@
 """Plan: what each quality preset will cost on the scene's capture, measured by the backend
 (``reconstruct CAPTURE --plan``: a few timed steps, nothing run) as a background job; the
-panel shows the line it answers ("Draft ≈ 3 min, Balanced ≈ 14 min, Final ≈ 40 min")."""
+panel shows the line its ``plan`` event carries, one predicted time per preset."""
 
 from pathlib import Path
 
