@@ -13,7 +13,7 @@ import bpy
 import bpy.utils.previews
 import numpy as np
 
-from .errors import AddonInputError
+from .io.errors import AddonInputError
 from .images import read_rgba
 
 FIGURE = "accuracy_time.png"

@@ -17,7 +17,7 @@ from pathlib import Path
 
 from .install_backend import installed_python
 
-PACKAGE_DIR = Path(__file__).resolve().parent.parent  # holds addon/ and backend/
+PACKAGE_DIR = Path(__file__).resolve().parents[2]  # holds addon/ and backend/
 VENV_PYTHONS = (".venv/bin/python", ".venv/Scripts/python.exe")  # a developer checkout's interpreter
 
 
@@ -46,8 +46,8 @@ def has_interpreter(package_dir: Path = PACKAGE_DIR, installed: Path | None = No
 
 
 def install_command(venv: Path, base: str = sys.executable, package_dir: Path = PACKAGE_DIR) -> list[str]:
-    """The command line of Install Backend: ``addon/install_backend.py`` run by ``base``."""
-    return [base, str(package_dir / "addon" / "install_backend.py"), "--venv", str(venv),
+    """The command line of Install Backend: ``addon/io/install_backend.py`` run by ``base``."""
+    return [base, str(package_dir / "addon" / "io" / "install_backend.py"), "--venv", str(venv),
             "--requirements", str(package_dir / "backend" / "requirements.txt"), "--package", str(package_dir)]
 
 

@@ -2,8 +2,7 @@
 
 Binary little-endian PLY with scalar vertex properties (``x y z``, optional ``red green
 blue`` linear colours and ``nx ny nz`` shading normals, any further floats such as
-``specular`` and ``roughness``) and
-triangles as counted index lists; see docs/protocol.md."""
+``specular`` and ``roughness``) and triangles as counted index lists; see docs/protocol.md."""
 
 from __future__ import annotations
 

@@ -1,13 +1,14 @@
 """Plan: what each quality preset will cost on the scene's capture, measured by the backend
 (``reconstruct CAPTURE --plan``: a few timed steps, nothing run) as a background job; the
-panel shows the line it answers ("Draft ≈ 3 min, Balanced ≈ 14 min, Final ≈ 40 min")."""
+panel shows the line its ``plan`` event carries, one predicted time per preset."""
 
 from pathlib import Path
 
 import bpy
 
-from .. import interpreter, jobs
-from ..errors import AddonInputError, require
+from .. import jobs
+from ..io import interpreter
+from ..io.errors import AddonInputError, require
 from ..preferences import backend_python
 from .common import capture_dir, has_backend, idle
 from .modal import CancelJob, JobModal
