@@ -8,10 +8,9 @@ from __future__ import annotations
 
 import argparse
 import importlib
-import signal
 import sys
 
-from . import __version__
+from . import __version__, interrupt
 from .errors import EXIT_BAD_INPUT, InputError
 
 COMMANDS = {
@@ -43,13 +42,9 @@ def build_parser(argv: list[str]) -> argparse.ArgumentParser:
     return parser
 
 
-def _terminate(signum, frame):
-    raise KeyboardInterrupt
-
-
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
-    signal.signal(signal.SIGTERM, _terminate)
+    interrupt.install()
     parser = build_parser(argv)
     args = parser.parse_args(argv)
     if not getattr(args, "func", None):
@@ -61,6 +56,11 @@ def main(argv: list[str] | None = None) -> int:
     except InputError as err:
         print(f"error: {err.line()}", file=sys.stderr)
         return EXIT_BAD_INPUT
+    except Exception as err:
+        if not interrupt.is_cancel(err):  # a library's wrapping of the interrupt is still a cancel
+            raise
+        print("cancelled", file=sys.stderr)
+        return 130
     except KeyboardInterrupt:
         print("cancelled", file=sys.stderr)
         return 130

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import fsio
+from .. import fsio, interrupt
 from ..capture.model import Capture
 from ..errors import InputError
 from ..geometry.init import check_lights_outside, initial_mesh
@@ -93,6 +93,9 @@ def reported(emit):
         emit("cancelled", snapshot=None)
         raise
     except Exception as err:
+        if interrupt.is_cancel(err):  # an interrupt a native library wrapped (backend/interrupt.py)
+            emit("cancelled", snapshot=None)
+            raise KeyboardInterrupt from None
         emit("error", message=f"{type(err).__name__}: {err}")
         raise
 
@@ -135,6 +138,10 @@ class Reconstruction:
                 self.track("resume" if self.resume else "start")
                 self._phases()
             except (KeyboardInterrupt, StopRequested):
+                return self._cancel()
+            except Exception as err:
+                if not interrupt.is_cancel(err):
+                    raise
                 return self._cancel()
             self._finish()
         return 0

@@ -30,6 +30,8 @@ class RunFolder:
     @classmethod
     def create(cls, path: str | Path, resume: bool, overwrite: bool) -> "RunFolder":
         path = Path(path)
+        if path.exists() and not path.is_dir():
+            raise InputError(path, "the run folder is a file", "give --out a folder (new, or an earlier run's)")
         if resume:
             if not (path / "state" / "state.json").is_file():
                 raise InputError(path, "nothing to resume (no state/state.json)",
