@@ -56,7 +56,7 @@ class AlignConfig:
 
 
 @dataclass
-class LightingEstimate:
+class MapAlignment:
     rotation_z_deg: float
     strength: float
     gains: list[float]  # per channel: frame ≈ gain × diffuse render (albedo 0.5, strength 1) + glossy part
@@ -213,7 +213,7 @@ def refine(loss: RotationLoss, start: float, step: float, config: AlignConfig,
 
 
 def align_lighting(capture: Capture, mesh: Mesh, env_pixels: np.ndarray, config: AlignConfig | None = None,
-                   rotation_z_deg: float | None = None, emit=lambda kind, **fields: None) -> LightingEstimate:
+                   rotation_z_deg: float | None = None, emit=lambda kind, **fields: None) -> MapAlignment:
     """Estimate the environment's rotation (unless given) and strength from the frames.
 
     ``mesh`` is the coarse object (the visual hull); ``env_pixels`` the full map. Needs a
@@ -272,7 +272,7 @@ def align_lighting(capture: Capture, mesh: Mesh, env_pixels: np.ndarray, config:
     value, _, gains = loss(theta, gradient=False)
     background = match_background([(s[1], s[2], s[4]) for s in samples], reduce_environment(env_pixels, 256), theta)
     response, strength, scale_from = camera_response(gains, background)
-    return LightingEstimate(rotation_z_deg=float(theta % 360.0), strength=strength,
+    return MapAlignment(rotation_z_deg=float(theta % 360.0), strength=strength,
                             gains=[float(g) for g in gains], loss=value, response=response, scale_from=scale_from,
                             background=background, coarse=coarse, refine=[(d % 360.0, v) for d, v in curve],
                             views=[s[0] for s in samples], pixels=len(points), seconds=time.time() - start,

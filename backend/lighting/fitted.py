@@ -28,7 +28,7 @@ import numpy as np
 
 from ..capture.model import Capture, Environment
 from ..errors import InputError, require
-from . import estimate, flash
+from . import estimated_map, flash
 
 MODELS = ("captured", "estimate", "flash")
 
@@ -55,7 +55,7 @@ class RunLighting:
         factor = "" if self.light_factor == 1.0 else f" x light factor {self.light_factor:.4g}"
         if self.model == "estimate":
             rig = ", fixed to the camera" if self.environment is not None and self.environment.frame == "camera" else ""
-            return f"the run's fitted environment map ({estimate.FILENAME}{rig}){factor}"
+            return f"the run's fitted environment map ({estimated_map.FILENAME}{rig}){factor}"
         return f"the views' own lights{factor}"
 
 
@@ -65,7 +65,7 @@ def from_live(lighting, material) -> RunLighting:
     factor = float(getattr(material, "light_factor", 1.0) or 1.0)
     if isinstance(lighting, flash.Flash):
         return RunLighting("flash", intensity=lighting.rgb_intensity)
-    if isinstance(lighting, estimate.EstimatedEnvironment):
+    if isinstance(lighting, estimated_map.EstimatedEnvironment):
         return RunLighting("estimate", lighting.environment(), light_factor=factor)
     return RunLighting("captured", light_factor=factor)
 
@@ -91,7 +91,7 @@ def from_run(folder: str | Path) -> RunLighting:
                 "the flash run's report has no positive lighting.intensity", "re-run or resume the reconstruction")
         return RunLighting("flash", intensity=np.broadcast_to(value.reshape(-1), (3,)).copy())
     if model.startswith("environment map"):
-        path = folder / str(lighting.get("file") or estimate.FILENAME)
+        path = folder / str(lighting.get("file") or estimated_map.FILENAME)
         require(path.is_file(), path, "the run's estimated environment map is missing",
                 "re-run or resume the reconstruction (it writes the map with every snapshot)")
         frame = "camera" if lighting.get("frame") == "camera" else "world"

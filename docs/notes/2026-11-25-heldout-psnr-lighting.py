@@ -23,7 +23,7 @@ variant.choose()
 import numpy as np  # noqa: E402
 
 from backend.capture.load import load_capture  # noqa: E402
-from backend.lighting.estimate import EstimatedEnvironment  # noqa: E402
+from backend.lighting.estimated_map import EstimatedEnvironment  # noqa: E402
 from backend.material import factory  # noqa: E402
 from backend.metrics.image import psnr  # noqa: E402
 from backend.optimize.run_folder import RunFolder  # noqa: E402
