@@ -1,9 +1,9 @@
-"""The lighting a run fitted, for rendering other views of the same capture (held-out views).
+"""The lighting a run fitted, read back for rendering other views of the same capture.
 
 Both scorers of a run's held-out views take it from here: ``evaluate`` on a finished run's
 folder (backend.metrics.evaluate, via :func:`from_run`: report.json and RUN/environment.exr)
-and ``--track-accuracy`` during a run (backend.optimize.accuracy, via :func:`from_live`: the
-run's lighting object and material). :func:`light_views` then lights the views:
+and ``--track-accuracy`` during a run (via :func:`from_live`: the run's lighting model and
+material). :func:`light_views` then lights the views:
 
 - ``captured``: the views' own point lights and map, the map x the staged material's fitted
   light factor (the factor scales the environment only, as in the fit);
@@ -13,9 +13,9 @@ run's lighting object and material). :func:`light_views` then lights the views:
 - ``flash``: one point light at each view's camera centre with the fitted intensity, no map.
 
 Under ``estimate`` and ``flash`` the albedo is in the units of the scale convention
-(backend.lighting.convention: mean albedo 0.5, the light rescaled to match), so only this
-lighting renders the run's material at the capture's brightness; views under another light
-(``relit``) need the albedo brought to the truth's units first (``evaluate`` does so)."""
+(backend.lighting.convention), so only this lighting renders the run's material at the
+capture's brightness; views under another light (``relit``) need the albedo brought to the
+truth's units first (``evaluate`` does so)."""
 
 from __future__ import annotations
 
@@ -60,8 +60,8 @@ class RunLighting:
 
 
 def from_live(lighting, material) -> RunLighting:
-    """During a run: ``lighting`` is its fitted lighting (``Appearance.lighting``: an
-    EstimatedEnvironment, a Flash, or None for the captured one), ``material`` its material."""
+    """During a run: ``lighting`` is its fitted lighting model (``Appearance.lighting``: an
+    EstimatedEnvironment, a Flash, or None for the captured lighting), ``material`` its material."""
     factor = float(getattr(material, "light_factor", 1.0) or 1.0)
     if isinstance(lighting, flash.Flash):
         return RunLighting("flash", intensity=lighting.rgb_intensity)

@@ -220,6 +220,7 @@ class FlashFit(LightingFit):
             renderer.set_light_scale(mi.Color3f(scale, scale, scale))
 
     def penalty(self, latent):
+        """No prior on the intensity."""
         return self.mi.Float(0.0)
 
     def finish(self, renderer, latent) -> None:
