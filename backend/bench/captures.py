@@ -42,7 +42,7 @@ from ..capture.images import linear_to_srgb, read_linear_rgb
 from ..capture.load import load_capture
 from ..geometry.mesh import load_mesh
 from ..lighting import fitted
-from ..lighting.setup import MAP_FRAME
+from ..lighting.modes import MAP_FRAME
 from ..metrics.image import psnr
 from ..optimize.views import ViewSet
 from ._data import SHARED_DATA

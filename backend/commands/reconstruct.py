@@ -18,7 +18,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from ..lighting.setup import HELP as LIGHTING_HELP, MODES as LIGHTING_MODES
+from ..lighting.modes import HELP as LIGHTING_HELP, MODES as LIGHTING_MODES
 from ..optimize import job
 from ..optimize.config import STAGED_FACE_GROWTH, ReconstructConfig
 from ..optimize.presets import DEFAULT, FILL_FACTOR, PRESETS, calibrated

@@ -22,10 +22,10 @@ import numpy as np
 
 from ..capture.model import Capture
 from ..errors import InputError
-from ..lighting.estimate import FILENAME as ESTIMATED_MAP
-from ..lighting.estimate import EstimatedEnvironment
+from ..lighting.estimated_map import FILENAME as ESTIMATED_MAP
+from ..lighting.estimated_map import EstimatedEnvironment
 from ..lighting.flash import Flash
-from ..lighting.setup import ESTIMATED, MAP_FRAME
+from ..lighting.modes import ESTIMATED, MAP_FRAME
 from ..material import factory
 from ..material.driver import MaterialDriver
 from ..material.export import write_glb

@@ -17,7 +17,7 @@ class ReconstructConfig:
     material: str = "auto"  # auto (constant, estimated), staged (mesh colors schedule) or known:R,G,B:SPEC:ROUGH
     effects: str = "auto"  # light-transport effects: auto (measured), all, or a list (see render/effects.py)
     # captured (the capture's lights) or estimate (an environment map fitted with the material,
-    # backend.lighting.estimate); the command resolves its default (backend.lighting.setup)
+    # backend.lighting.estimated_map); the command resolves its default (backend.lighting.modes)
     lighting: str = "captured"
     initial_faces: int = 5000  # face count of the initial mesh; the budget D starts at twice this
     max_faces: int = 250_000  # refinement stops once the budget would exceed this

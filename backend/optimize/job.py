@@ -22,7 +22,7 @@ from ..capture.format import FILENAME
 from ..capture.load import load_capture
 from ..errors import InputError, require
 from ..events import Emitter, read_log
-from ..lighting.setup import resolve_lighting
+from ..lighting.modes import resolve_lighting
 from ..video.inputs import check_inputs, write_capture
 from .config import STAGED_FACE_GROWTH, ReconstructConfig
 from .plan import capture_plan, make_plan

@@ -401,7 +401,7 @@ def test_settings_variable_is_checked(capture, tmp_path):
 
 def test_a_capture_with_no_light_is_refused_and_env_lights_it(capture, tmp_path):
     # with --lighting none: by default such a capture's lighting is estimated
-    # (tests/lighting/test_estimate.py)
+    # (tests/lighting/test_estimated_map.py)
     dark = tmp_path / "dark"
     import shutil
 

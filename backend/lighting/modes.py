@@ -1,8 +1,8 @@
-"""Which lighting a reconstruction uses (``reconstruct --lighting``), decided before any work.
+"""Which lighting a reconstruction uses (``reconstruct --lighting``), resolved before any work.
 
 - ``captured``: the capture's own lights (its environment map, its point lights) or the map
   ``--env`` gives; a capture lit by nothing stops with a one-line error (exit 2).
-- ``estimate``: the environment is fitted with the material (backend.lighting.estimate);
+- ``estimate``: the environment is fitted with the material (backend.lighting.estimated_map);
   a captured map is withheld (point lights stay). The default when the capture has no light
   and no ``--env`` is given.
 - ``rig``: the same fitted map, fixed to each view's camera instead of the world (lamps on
@@ -35,6 +35,7 @@ HELP = ("the lighting: 'captured' (the capture's environment map and point light
 
 
 def default_mode(has_light: bool, env: str | None) -> str:
+    """``captured`` when the capture has a light or ``--env`` gives one, else ``estimate``."""
     return "captured" if has_light or env is not None else "estimate"
 
 

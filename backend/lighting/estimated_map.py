@@ -1,26 +1,19 @@
-"""``--lighting estimate``: the environment as one more parameter of the differentiable render.
+"""The environment map fitted with the material (``--lighting estimate`` and ``rig``).
 
-The map is a low-resolution equirectangular HDR image in Blender's World convention (the
-one ``capture.model.Environment`` documents, rotation 0), log-parameterised (texel =
-exp(latent), so it stays positive) with a smoothness prior (squared differences of
-neighbouring latents, longitude wrapping), coarse to fine (``RESOLUTIONS``: one step per
-material stage reached). It starts from what the frames show of the background outside the
-masks (the environment seen directly along the camera rays), else a uniform grey, at the
-level at which the convention's albedo renders the object as bright as the frames show it:
-a background is often a table or a wall, far darker than the lamps that light the object,
-and an albedo bounded by 1 cannot make up the difference while the map climbs to it.
+The map is a low-resolution equirectangular HDR image in Blender's World convention
+(``capture.model.Environment``, rotation 0), texel = exp(latent) so it stays positive, with a
+smoothness prior on neighbouring latents (longitude wrapping), coarse to fine (``RESOLUTIONS``:
+one step per material stage reached). The material stages fit it by Adam with the material
+(``EnvironmentFit``); geometry steps render with it and leave it fixed; after each stage the
+scale convention rescales it with the albedo (backend.lighting.convention; the colour is left
+to the fit). ``frame`` "camera" (``--lighting rig``) fixes the map to each view's camera instead
+of the world: lamps on a camera rig, which turn with the view.
 
-The material stages fit it by Adam jointly with the material latents (``EnvironmentFit``,
-the ``lighting`` argument of ``material.stages.fit``); geometry steps render with the
-current map and leave it fixed. Albedo x light has one free scale: after each stage the map
-and the material are rescaled together so that the object's mean albedo is
-``ALBEDO_CONVENTION`` (backend.lighting.convention; the renders do not change). The colour is
-free too; the map starts white and the fit settles it.
-
-``--lighting rig`` fits the same map fixed to each view's camera instead of the world
-(``Environment.frame`` "camera": lamps on the camera rig, as in DTU-like studio captures,
-where the light turns with the view); it starts uniform, since the background the frames show
-is the world's, not the rig's."""
+It starts from the frames' background outside the masks (the environment seen along the
+camera rays), else a uniform grey, at the level at which an albedo of ``ALBEDO_CONVENTION``
+renders the object as bright as the frames show it: a background is often a table or a wall,
+far darker than the lamps that light the object, which an albedo bounded by 1 cannot make up
+for. A rig's map starts uniform: the background the frames show is the world's, not the rig's."""
 
 from __future__ import annotations
 
@@ -31,6 +24,7 @@ from PIL import Image
 
 from ..capture.images import read_linear_rgb, read_mask, write_image
 from ..capture.model import Capture, Environment
+from .base import LightingFit, LightingModel
 from .convention import ALBEDO_CONVENTION, describe, normalise_albedo
 
 RESOLUTIONS = ((16, 8), (32, 16), (64, 32))  # (width, height): constant, diffuse, specular stage
@@ -62,6 +56,7 @@ def texel_of(d: np.ndarray, width: int, height: int) -> tuple[np.ndarray, np.nda
 
 
 def _small(a: np.ndarray, w: int, h: int) -> np.ndarray:
+    """An image (H, W) or (H, W, C) box-filtered to ``w`` x ``h``."""
     chans = a[..., None] if a.ndim == 2 else a
     out = np.stack([np.asarray(Image.fromarray(np.ascontiguousarray(chans[..., c], np.float32), "F")
                                .resize((w, h), Image.BOX)) for c in range(chans.shape[-1])], -1)
@@ -157,9 +152,17 @@ def upsample(latent: np.ndarray, width: int, height: int) -> np.ndarray:
     return (top * (1 - fy) + bottom * fy).astype(np.float32)
 
 
-class EstimatedEnvironment:
-    """The fitted map: its latent (height, width, 3) = log radiance, where it is written, and the
-    history of its fit (``report``)."""
+class EstimatedEnvironment(LightingModel):
+    """The fitted map (backend.lighting.base.LightingModel).
+
+    Args:
+        latent: (height, width, 3) log radiance.
+        path: where the map is written (RUN/environment.exr).
+        source: where the start came from: "background", "uniform" or "resumed".
+        seen: share of texels the frames' background showed.
+        background_scale: the factor ``initial_map`` scaled the background by.
+        frame: "world", or "camera" (fixed to each view's camera: ``--lighting rig``).
+    """
 
     smoothness: float = 0.02  # x mean squared difference of neighbouring latents
     lr: float = 0.15  # Adam step on the latents: a sun some 20x the map's mean is 3 log units up
@@ -169,14 +172,15 @@ class EstimatedEnvironment:
         self.latent = np.asarray(latent, np.float32)
         self.path = Path(path)
         self.source, self.seen = source, seen
-        self.background_scale = background_scale  # the level matching of ``initial_map``
-        self.level = 0
-        self.frame = frame  # "world", or "camera": fixed to each view's camera (--lighting rig)
+        self.background_scale = background_scale
+        self.level = 0  # index into RESOLUTIONS
+        self.frame = frame
         self.scales: list[float] = []  # the convention's rescaling factors, one per stage
         self.restarts = 0
 
     @classmethod
     def initial(cls, capture: Capture, path: Path, frame: str = "world") -> "EstimatedEnvironment":
+        """The start ``initial_map`` gives at the coarsest resolution (uniform for a rig's map)."""
         width, height = RESOLUTIONS[0]
         pixels, source, seen, scale = initial_map(capture, width, height, background=frame == "world")
         return cls(np.log(pixels), path, source, seen, scale, frame)
@@ -192,10 +196,12 @@ class EstimatedEnvironment:
     # -- the map ---------------------------------------------------------------------------------
     @property
     def resolution(self) -> tuple[int, int]:
+        """(width, height) in texels."""
         return self.latent.shape[1], self.latent.shape[0]
 
     @property
     def pixels(self) -> np.ndarray:
+        """The map's radiance, (height, width, 3) float32."""
         return np.exp(self.latent).astype(np.float32)
 
     def environment(self) -> Environment:
@@ -218,7 +224,7 @@ class EstimatedEnvironment:
 
     def restart(self, capture: Capture) -> None:
         """Back to the initial map at the coarsest resolution, to be fitted again (the relight
-        on the final surface: backend.optimize.appearance)."""
+        on the final surface: backend.optimize.relight)."""
         width, height = RESOLUTIONS[0]
         pixels, self.source, self.seen, self.background_scale = initial_map(capture, width, height,
                                                                             background=self.frame == "world")
@@ -226,6 +232,7 @@ class EstimatedEnvironment:
         self.restarts += 1
 
     def rescale(self, factor: float) -> None:
+        """The map's radiance times ``factor``."""
         self.latent = self.latent + np.float32(np.log(factor))
 
     def normalise(self, material) -> float:
@@ -253,6 +260,7 @@ class EstimatedEnvironment:
         return self.write(Path(folder) / FILENAME)
 
     def state(self) -> dict:
+        """The coarse-to-fine level (the map is in its file)."""
         return {"level": self.level}
 
     def restore(self, state: dict) -> None:
@@ -260,6 +268,7 @@ class EstimatedEnvironment:
         self.level = int(state.get("level", 0))
 
     def report(self) -> dict:
+        """report.json ``lighting``: the map's file, resolution, start, rescalings and mean radiance."""
         width, height = self.resolution
         return {"model": "environment map (estimated)", "file": FILENAME, "resolution": [width, height],
                 "parameterisation": "texel = exp(latent), smoothness prior on neighbouring latents",
@@ -281,10 +290,10 @@ class EstimatedEnvironment:
         return EnvironmentFit(self)
 
 
-class EnvironmentFit:
-    """The map's share of a material stage's Adam (``material.stages.fit``): its latent as one
-    more optimised variable, written into the scene's ``environment.data`` before every render,
-    its smoothness penalty, and the result taken back."""
+class EnvironmentFit(LightingFit):
+    """The map's share of a material stage's Adam (backend.lighting.base.LightingFit): its
+    latent, flattened, written as exp(latent) into the scene's ``environment.data`` before
+    every render, with the smoothness prior as its penalty."""
 
     KEY = "environment.data"
     NAME = "environment"
@@ -308,11 +317,15 @@ class EnvironmentFit:
                                 np.stack([here[:-1], down[:-1]], -1).reshape(-1, 2)])
         self.pairs = [mi.UInt32((pairs[:, k, None] * 3 + np.arange(3)).astype(np.uint32).ravel()) for k in (0, 1)]
 
+    @property
+    def lr(self) -> float:
+        return self.estimate.lr
+
     def present(self, renderer) -> bool:
         return self.KEY in renderer.params
 
     def prepare(self, renderer, images, weights, views=None) -> None:
-        """Nothing to solve first: the map starts where the last stage left it."""
+        """No closed form: the map starts where the last stage left it."""
 
     def initial(self):
         return self.mi.Float(self.estimate.latent.ravel())
@@ -325,6 +338,7 @@ class EnvironmentFit:
         renderer.params.update()
 
     def penalty(self, latent):
+        """``smoothness`` x the mean squared difference of neighbouring latents (longitude wrapping)."""
         dr, mi = self.dr, self.mi
         a, b = (dr.gather(mi.Float, latent, p) for p in self.pairs)
         return self.estimate.smoothness * dr.mean(dr.square(a - b))

@@ -1,4 +1,4 @@
-"""``--lighting estimate`` (backend.lighting.estimate, backend.lighting.setup): the map's
+"""``--lighting estimate`` (backend.lighting.estimated_map, backend.lighting.modes): the map's
 conventions, its fit with the material through real renders, and the command end to end on a
 tiny capture rendered under an HDR map that the run does not get."""
 
@@ -23,8 +23,8 @@ import mitsuba as mi  # noqa: E402
 from backend.capture.images import read_linear_rgb, write_image, write_mask  # noqa: E402
 from backend.capture.model import Capture, Environment, Frame  # noqa: E402
 from backend.errors import InputError  # noqa: E402
-from backend.lighting import convention, estimate  # noqa: E402
-from backend.lighting.setup import resolve_lighting  # noqa: E402
+from backend.lighting import convention, estimated_map  # noqa: E402
+from backend.lighting.modes import resolve_lighting  # noqa: E402
 from backend.material import stages  # noqa: E402
 from backend.material.model import MeshColorMaterial  # noqa: E402
 from backend.render.scene import RenderSettings, SceneRenderer, environment_dict, sensor_dict  # noqa: E402
@@ -44,14 +44,14 @@ def correlation(a: np.ndarray, b: np.ndarray) -> float:
 
 
 def test_texel_directions_round_trip_and_upsample_wraps():
-    d = estimate.directions(16, 8)
-    rows, cols = estimate.texel_of(d.reshape(-1, 3), 16, 8)
+    d = estimated_map.directions(16, 8)
+    rows, cols = estimated_map.texel_of(d.reshape(-1, 3), 16, 8)
     assert np.array_equal(rows.reshape(8, 16), np.repeat(np.arange(8)[:, None], 16, 1))
     assert np.array_equal(cols.reshape(8, 16), np.repeat(np.arange(16)[None, :], 8, 0))
     assert d[0, 0, 2] > 0.9 and d[-1, 0, 2] < -0.9  # row 0 is the zenith (Z up)
     latent = np.zeros((8, 16, 3), np.float32)
     latent[:, 0] = 1.0
-    up = estimate.upsample(latent, 32, 16)
+    up = estimated_map.upsample(latent, 32, 16)
     assert up.shape == (16, 32, 3)
     assert up[:, -1, 0].mean() > 0.2 and up[:, 16, 0].max() == 0  # longitude wraps, the far side stays
 
@@ -70,10 +70,10 @@ def test_initial_map_is_the_background_seen_through_the_camera_rays(tmp_path):
         write_image(tmp_path / f"{k}.exr", image)
         write_mask(tmp_path / f"{k}.png", np.zeros(image.shape[:2]))
         frames.append(Frame(str(k), tmp_path / f"{k}.exr", cam, mask=tmp_path / f"{k}.png"))
-    pixels, source, seen, scale = estimate.initial_map(Capture(tmp_path, frames), 16, 8)
+    pixels, source, seen, scale = estimated_map.initial_map(Capture(tmp_path, frames), 16, 8)
     assert source == "background" and 0.2 < seen < 1.0 and scale == 1.0  # no object seen: the level kept
-    dirs, _, _ = estimate.background_samples(Capture(tmp_path, frames))
-    rows, cols = estimate.texel_of(dirs, 16, 8)
+    dirs, _, _ = estimated_map.background_samples(Capture(tmp_path, frames))
+    rows, cols = estimated_map.texel_of(dirs, 16, 8)
     hit = np.zeros((8, 16), bool)
     hit[rows, cols] = True
     truth = box_down(sky, 16, 8)
@@ -94,7 +94,7 @@ def test_frames_black_outside_their_masks_but_for_edge_leaks_show_no_background(
         write_image(tmp_path / f"{k}.exr", image)
         write_mask(tmp_path / f"{k}.png", mask)
         frames.append(Frame(str(k), tmp_path / f"{k}.exr", cam, mask=tmp_path / f"{k}.png"))
-    pixels, source, seen, _ = estimate.initial_map(Capture(tmp_path, frames), 16, 8)
+    pixels, source, seen, _ = estimated_map.initial_map(Capture(tmp_path, frames), 16, 8)
     assert source == "uniform" and seen == 0.0
     assert np.allclose(pixels, 0.6 / convention.ALBEDO_CONVENTION, rtol=1e-3)
 
@@ -113,9 +113,9 @@ def test_initial_map_level_lets_the_convention_albedo_render_the_object(tmp_path
         write_image(tmp_path / f"{k}.exr", image)
         write_mask(tmp_path / f"{k}.png", mask)
         frames.append(Frame(str(k), tmp_path / f"{k}.exr", cam, mask=tmp_path / f"{k}.png"))
-    pixels, source, _, scale = estimate.initial_map(Capture(tmp_path, frames), 16, 8)
+    pixels, source, _, scale = estimated_map.initial_map(Capture(tmp_path, frames), 16, 8)
     assert source == "background" and scale > 10
-    level = float(estimate.sphere_mean(pixels).mean())
+    level = float(estimated_map.sphere_mean(pixels).mean())
     assert level * convention.ALBEDO_CONVENTION == pytest.approx(0.65, rel=0.05)
     seen = pixels.reshape(-1, 3)
     assert np.all(seen[:, 0] > seen[:, 1]) and np.all(seen[:, 1] > seen[:, 2])  # its colour kept
@@ -133,7 +133,7 @@ def test_environment_fit_recovers_the_sky_with_a_known_material():
                           RenderSettings(spp=64, max_depth=2, integrator="path"), env_pixels=sky, rgba=True)
     out = [truth.render_numpy(v, seed=v) for v in range(len(cams))]
     images, weights = [o[..., :3] for o in out], [o[..., 3] for o in out]
-    fitted = estimate.EstimatedEnvironment(np.full((8, 16, 3), np.log(0.5), np.float32), Path("e.exr"))
+    fitted = estimated_map.EstimatedEnvironment(np.full((8, 16, 3), np.log(0.5), np.float32), Path("e.exr"))
     renderer = SceneRenderer(mesh, material.field, cams, [[] for _ in cams], fitted.environment(),
                              RenderSettings(spp=8, max_depth=2, integrator="prb"))
     before = stages.evaluate_loss(renderer, images, weights, material)
@@ -150,12 +150,12 @@ def test_environment_fit_recovers_the_sky_with_a_known_material():
 
 def test_restart_returns_the_map_to_its_initial_state(tmp_path):
     capture = Capture(tmp_path, [])
-    env = estimate.EstimatedEnvironment.initial(capture, tmp_path / "environment.exr")
+    env = estimated_map.EstimatedEnvironment.initial(capture, tmp_path / "environment.exr")
     first = env.latent.copy()
     env.at_stage("specular")
     env.latent = env.latent + 1.0
     env.restart(capture)
-    assert env.level == 0 and env.resolution == estimate.RESOLUTIONS[0] and env.restarts == 1
+    assert env.level == 0 and env.resolution == estimated_map.RESOLUTIONS[0] and env.restarts == 1
     assert np.array_equal(env.latent, first) and env.report()["restarts"] == 1
 
 
@@ -164,7 +164,7 @@ def test_normalise_keeps_renders_and_sets_mean_albedo():
     material = MeshColorMaterial(mesh, 1)
     material.set_values("albedo", [0.2, 0.3, 0.4])
     material.light_factor = 2.0
-    fitted = estimate.EstimatedEnvironment(np.zeros((8, 16, 3), np.float32), Path("e.exr"))
+    fitted = estimated_map.EstimatedEnvironment(np.zeros((8, 16, 3), np.float32), Path("e.exr"))
     s = fitted.normalise(material)
     assert s == pytest.approx(0.5 / 0.3, rel=1e-4)
     assert convention.mean_albedo(material) == pytest.approx(0.5, rel=1e-3)
