@@ -30,7 +30,7 @@ def calibration(root: Path = interpreter.PACKAGE_DIR) -> dict:
 
 def kind_for(lighting: str, env_path: str = "") -> str:
     """The calibration kind a capture is promised, as the backend decides it
-    (``backend.optimize.presets.lighting_kind``): 'environment' when a map lights it (an
+    (``backend.planning.presets.lighting_kind``): 'environment' when a map lights it (an
     imported HDR, or one the run estimates), else 'point' (the capture's lights, a flash)."""
     if lighting in ("ESTIMATE", "RIG") or (lighting == "CAPTURED" and env_path):
         return "environment"

@@ -12,16 +12,16 @@ any capture with that map. ``$SFT_RECONSTRUCT_SETTINGS`` (a JSON object of setti
 ``{"max_size": 32}``) applies over the preset and under the options: tests and scripted
 runs shrink a run with it without changing the command line.
 
-The command is its options; the job (checks, config, run) is :mod:`backend.optimize.job`."""
+The command is its options; the job (checks, config, run) is :mod:`backend.planning.job`."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
 from ..lighting.setup import HELP as LIGHTING_HELP, MODES as LIGHTING_MODES
-from ..optimize import job
+from ..planning import job
 from ..optimize.config import STAGED_FACE_GROWTH, ReconstructConfig
-from ..optimize.presets import DEFAULT, FILL_FACTOR, PRESETS, calibrated
+from ..planning.presets import DEFAULT, FILL_FACTOR, PRESETS, calibrated
 from ..video.inputs import add_lighting_arguments
 
 INIT_HELP = "carve (visual hull; default with masks), sphere, box, spheres (sphere cloud), points (SfM + Poisson), or a mesh file"

@@ -119,16 +119,6 @@ class Appearance:
         """The saved material of a resumed run, of the model this run's --material asks for."""
         return factory.load(path, factory.kind_for(self.config.material), folder)
 
-    # -- the schedule's share of a time budget --------------------------------------------------
-    def geometry_reserve(self) -> float:
-        """The share of a time budget the geometry levels leave to the material stages that
-        run to convergence on the final geometry (staged materials only)."""
-        return self.driver.reserve if self.driver is not None else 0.0
-
-    def polish_reserve(self, last_cycle_seconds: float | None, budget_s: float | None) -> float:
-        """The share polish rounds leave to what follows them (MaterialDriver.polish_share)."""
-        return 0.0 if self.driver is None else self.driver.polish_share(last_cycle_seconds, budget_s)
-
     @property
     def staged(self) -> bool:
         """Whether a material schedule runs (and polish rounds with it)."""

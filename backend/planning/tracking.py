@@ -14,8 +14,7 @@ and material under the run's fitted lighting
 factor, the estimated map, or the flash at each view's camera), every ``accuracy_every_s``
 seconds of run time and at every level's and stage's end: the mean PSNR on sRGB within the
 masks (backend.metrics.image). The run does not charge that time to its budget. Each score is an ``accuracy`` event and a point of ``report.json``
-``accuracy_time``; ``RUN/accuracy_time.png`` (accuracy_figure) is redrawn after each one.
-``next_level`` says what the level a time budget cut off was expected to buy."""
+``accuracy_time``; ``RUN/accuracy_time.png`` (tracking_figure) is redrawn after each one."""
 
 from __future__ import annotations
 
@@ -34,8 +33,8 @@ from ..lighting import fitted
 from ..material.stages import check_views
 from ..metrics.image import psnr
 from ..render.scene import RenderSettings, SceneRenderer
-from . import accuracy_figure
-from .views import ViewSet
+from ..optimize.views import ViewSet
+from . import tracking_figure
 
 FIGURE = "accuracy_time.png"
 # samples per pixel x this when an environment map lights the views: a map lights each point
@@ -179,7 +178,7 @@ class AccuracyTracker:
                  "stage": self.marks[-1]["stage"] if self.marks else "init", "phase": phase, "why": why,
                  "views": len(views), "scoring_seconds": round(seconds, 3), "figure": FIGURE}
         self.points.append(point)
-        accuracy_figure.write(Path(folder) / FIGURE, self.points, self.marks, self.title())
+        tracking_figure.write(Path(folder) / FIGURE, self.points, self.marks, self.title())
         return point
 
     def title(self) -> str:
@@ -225,27 +224,11 @@ class AccuracyTracker:
                 "scored_views": [v.name for v in self.views()], "size": self.size, "spp": self.spp or c.accuracy_spp,
                 "every_s": c.accuracy_every_s, "scoring_seconds": round(self.scoring_seconds, 3),
                 "points": self.points, "marks": self.marks, "level_gains": self.level_gains(),
-                "figure": FIGURE, "caption": accuracy_figure.CAPTION}
+                "figure": FIGURE, "caption": tracking_figure.CAPTION}
 
 
-def next_level(levels: list, levels_ended: str | None, gains: list[dict], size: int) -> dict | None:
-    """What the level a time budget cut off was expected to buy: an extrapolation from the
-    last level run (its held-out PSNR gain when tracked, its validation-loss drop always).
-    None unless the time budget ended the levels."""
-    geometric = [lv for lv in levels if not lv.polish]
-    if levels_ended != "time budget" or not geometric:
-        return None
-    last = geometric[-1]
-    drop = (last.loss_start - last.loss) / last.loss_start if last.loss_start > 0 else None
-    gain = next((g for g in gains if g["level"] == last.level), None)
-    seconds = gain["seconds"] if gain is not None else last.seconds
-    out = {"level": last.level + 1, "size": size, "extrapolated": True,
-           "basis": f"level {last.level}, the last one run ({seconds:.0f} s with its stages)",
-           "validation_loss_drop": None if drop is None else round(drop, 4),
-           "psnr_gain_db": None if gain is None else gain["psnr_gain_db"]}
-    bought = (f"about {gain['psnr_gain_db']:+.2f} dB held-out PSNR" if gain is not None else
-              f"about {100 * drop:.1f} % lower validation loss" if drop is not None else "an unknown gain")
-    out["line"] = (f"the time budget ended the levels after level {last.level}: level {last.level + 1} "
-                   f"({size} px) was expected to buy {bought} (extrapolated: level {last.level}'s own gain, "
-                   f"in {seconds:.0f} s)")
-    return out
+def start(capture: Capture, config) -> tuple[Capture, AccuracyTracker]:
+    """(the capture the run fits, the tracker of its held-out views) by ``split``: what
+    ``optimize.run.reconstruct`` takes as ``tracking``."""
+    fitted, held = split(capture, config)
+    return fitted, AccuracyTracker(held, config)

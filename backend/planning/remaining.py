@@ -1,6 +1,6 @@
 """``Remaining``: a run's time left, re-estimated while it runs from the plan and its own pace.
 
-Before the first step the plan (optimize/plan.py) predicts every phase of the run: each
+Before the first step the plan (planning/time_plan.py) predicts every phase of the run: each
 level's geometry steps and its material cycle, the long material cycles on the converged
 geometry, the polish rounds. What it cannot know are the counts that end on convergence
 (steps per level, final cycles, polish steps) and how much a step costs once the material
@@ -223,32 +223,3 @@ def resumed(events_path, budget_s: float | None = None) -> Remaining | None:
         remaining.observe(str(e.get("event")), e, float(e.get("time") or 0.0))
     remaining.current, remaining.ended = None, False  # the phase it was in starts again
     return remaining
-
-
-class Paced:
-    """An emitter that first shows every event to the run's ``Remaining`` (``run.budget.remaining``,
-    once the plan has set it), on the run's clock. A ``progress`` event sent straight to the
-    emitter (a material stage's, the lighting's) goes through the run's ``Progress`` instead,
-    so that it carries the fraction and time left, and the heartbeat repeats its stage, not
-    the last level's."""
-
-    def __init__(self, inner, run):
-        self.inner, self.run = inner, run  # run: the Reconstruction, whose budget and progress come later
-
-    def __call__(self, event: str, **fields) -> dict:
-        progress = getattr(self.run, "progress", None)
-        if event == "progress" and "fraction" not in fields and progress is not None:
-            progress.restart(**fields)
-            return fields
-        budget = getattr(self.run, "budget", None)
-        if budget is not None and budget.remaining is not None:
-            try:
-                budget.remaining.observe(event, fields, budget.elapsed())
-            except Exception as err:  # an estimate that fails must not stop the run it estimates
-                budget.remaining = None
-                self.inner("warning", message=f"no estimate of the time left from here on ({type(err).__name__}: {err})")
-        return self.inner(event, **fields)
-
-    @property
-    def start(self) -> float:
-        return self.inner.start

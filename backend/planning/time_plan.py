@@ -36,7 +36,7 @@ A run plans its ``preset`` event with the effects it decided (``reconstruct``'s 
 ``--plan`` decides nothing and times the likely settings (``geometry_settings``). Shadow
 gradients are charged at the samples a level keeps (``optimize.shadow_samples``). Step counts
 come from the calibration scene lit as the capture is; a re-mesh is left out. Each preset's
-held-out PSNR comes from optimize/forecast.py. ``bench plan`` compares predicted and measured
+held-out PSNR comes from planning/accuracy_forecast.py. ``bench plan`` compares predicted and measured
 (docs/results.md, "Predicted time")."""
 
 from __future__ import annotations
@@ -48,10 +48,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..geometry.simplify import FaceBudget
+from ..optimize.convergence import level_size
+from ..optimize.views import ViewSet, validation_views
+from .accuracy_forecast import extrapolated, gain, load_gains, predicted_psnr
 from .remaining import Phase
-from .schedule import level_size
 from .step_costs import MAX_PROBE_FACES, Point, StepCosts, fit, measure, pixels_for, probe_mesh  # noqa: F401 (the plan's API)
-from .views import validation_views
 
 FIXED_SECONDS = 15.0  # process start, loading, initial mesh, effects decision, snapshots, outputs
 # means over staged Draft runs (docs/results.md, "Predicted time"): these end on their own
@@ -116,10 +117,10 @@ class PresetPlan:
     budget_s: float | None = None
     level_limit: int | None = None  # steps after which a level ends (calibrated steps only)
     expected_f1: float | None = None  # on the calibration scene
-    predicted_psnr: float | None = None  # held-out, from this capture's probe (optimize/forecast.py)
+    predicted_psnr: float | None = None  # held-out, from this capture's probe (planning/accuracy_forecast.py)
     psnr_spread: float | None = None  # the calibration captures' largest distance from their median gain
     psnr_extrapolated: str | None = None  # "finer"/"coarser": scored at a size no calibration capture was
-    phases: list[Phase] = dataclasses.field(default_factory=list)  # in order, for optimize/remaining.py
+    phases: list[Phase] = dataclasses.field(default_factory=list)  # in order, for planning/remaining.py
 
     @property
     def unbounded_seconds(self) -> float:
@@ -140,7 +141,7 @@ class PresetPlan:
 
     def psnr_text(self) -> str | None:
         """'≈ 24 ± 2 dB'; '21+ dB' for a capture scored finer than the calibration's (a floor:
-        optimize/forecast.py); None without a prediction."""
+        planning/accuracy_forecast.py); None without a prediction."""
         return psnr_text(self.predicted_psnr, self.psnr_spread, self.psnr_extrapolated)
 
     def to_json(self) -> dict:
@@ -282,9 +283,6 @@ def make_plan(capture, configs: dict, settings, staged: bool, calibration: dict 
     ReconstructConfig}); ``settings``: the geometry steps' RenderSettings; ``calibration``:
     {preset: calibration entry}; ``initial``: the run's initial mesh (None: icospheres);
     ``probe``: forecast.probe's measurement, for each preset's predicted held-out PSNR."""
-    from .forecast import extrapolated, gain, load_gains, predicted_psnr
-    from .views import ViewSet
-
     largest = max(c.max_size for c in configs.values())
     viewset = viewset or ViewSet(capture, largest)
     pixels_at = pixels_for(viewset)
@@ -308,7 +306,7 @@ def geometry_settings(config, capture=None, geometry: bool = True) -> "RenderSet
     """The render settings the run will most likely use before its effects decision: the
     config's base for point-lit captures; under an environment map, shadow gradients and one
     bounce (the decision keeps them for objects that shadow themselves); ``--effects`` wins."""
-    from ..render import effects
+    from ..render import effects  # these need the Mitsuba variant chosen (the plan's caller does)
     from ..render.scene import RenderSettings
 
     c = config

@@ -47,3 +47,26 @@ def keeps_improving(previous, current, tolerance: float) -> bool:
     if previous is None or previous.size != current.size:
         return True
     return current.loss < previous.loss * (1 - tolerance)
+
+
+def next_level(levels: list, levels_ended: str | None, gains: list[dict], size: int) -> dict | None:
+    """What the level a time budget cut off was expected to buy: an extrapolation from the
+    last level run (its held-out PSNR gain when tracked, its validation-loss drop always).
+    None unless the time budget ended the levels."""
+    geometric = [lv for lv in levels if not lv.polish]
+    if levels_ended != "time budget" or not geometric:
+        return None
+    last = geometric[-1]
+    drop = (last.loss_start - last.loss) / last.loss_start if last.loss_start > 0 else None
+    gain = next((g for g in gains if g["level"] == last.level), None)
+    seconds = gain["seconds"] if gain is not None else last.seconds
+    out = {"level": last.level + 1, "size": size, "extrapolated": True,
+           "basis": f"level {last.level}, the last one run ({seconds:.0f} s with its stages)",
+           "validation_loss_drop": None if drop is None else round(drop, 4),
+           "psnr_gain_db": None if gain is None else gain["psnr_gain_db"]}
+    bought = (f"about {gain['psnr_gain_db']:+.2f} dB held-out PSNR" if gain is not None else
+              f"about {100 * drop:.1f} % lower validation loss" if drop is not None else "an unknown gain")
+    out["line"] = (f"the time budget ended the levels after level {last.level}: level {last.level + 1} "
+                   f"({size} px) was expected to buy {bought} (extrapolated: level {last.level}'s own gain, "
+                   f"in {seconds:.0f} s)")
+    return out

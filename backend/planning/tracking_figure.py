@@ -1,5 +1,5 @@
 """``RUN/accuracy_time.png``: held-out PSNR against run time, with the run's levels and stages
-marked (``--track-accuracy``; backend.optimize.accuracy).
+marked (``--track-accuracy``; backend.planning.tracking).
 
 Drawn with numpy and Pillow, which the backend already needs (matplotlib is not among the
 packages the add-on installs). Pale bands behind the curve show the stage each stretch of

@@ -40,6 +40,9 @@ from pathlib import Path
 
 import numpy as np
 
+from ..optimize.views import ViewSet
+from .presets import lighting_kind
+
 SPREAD_FLOOR_DB = 1.0  # a run's held-out PSNR moves by up to about this much run to run: no narrower promise
 PROBE_CYCLES = 8  # most material cycles the probe runs (the constant stage ends sooner: MaterialSchedule)
 GAINS_FILE = Path(__file__).resolve().parents[1] / "forecast.json"  # written by ``bench plan --calibrate``
@@ -55,10 +58,8 @@ def probe(capture, config, held=None, mesh=None) -> dict | None:
     {"psnr", "seconds", "views", "source", "cycles", "faces", "size" (the scored images' long
     side, px), "lighting_kind"}."""
     from ..geometry.init import initial_mesh  # these need the Mitsuba variant chosen (the plan's caller does)
-    from . import accuracy
-    from .appearance import Appearance
-    from .presets import lighting_kind
-    from .views import ViewSet
+    from ..optimize.appearance import Appearance
+    from . import tracking
 
     if config.material != "staged":
         return None
@@ -66,7 +67,7 @@ def probe(capture, config, held=None, mesh=None) -> dict | None:
     config = dataclasses.replace(config, track_accuracy=True)
     if held is None or held.capture is None:
         mesh = None  # carved from every view: the probe's must not see the held-out ones
-        capture, held = accuracy.split(dataclasses.replace(capture), config)
+        capture, held = tracking.split(dataclasses.replace(capture), config)
         if held.capture is None:
             return None
     fit = dataclasses.replace(capture)  # the lighting fit sets its environment on this copy only
@@ -85,7 +86,7 @@ def probe(capture, config, held=None, mesh=None) -> dict | None:
         if appearance.driver.stage == "diffuse":
             appearance.material_cycle(mesh, material, views, level=0)
             cycles += 1
-        tracker = accuracy.AccuracyTracker(held, config)
+        tracker = tracking.AccuracyTracker(held, config)
         size = max((max(v.camera.width, v.camera.height) for v in tracker.views()), default=None)
         point = tracker.score(mesh, material, appearance.lighting, level=0, phase="probe", why="probe",
                               validation_loss=None, folder=Path(folder))
