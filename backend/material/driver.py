@@ -7,7 +7,7 @@
     driver.on_remesh(mesh, material, cameras, reset=False)   # after a re-mesh (labels re-voted)
     driver.finalise()                                        # geometry converged: last, longer stages
     driver.restart(material, 3)                              # ... from grey, constants first (a relight)
-    driver.refine() / driver.skip_to() / driver.skip_rest()  # the schedule's other moves
+    driver.schedule.refine() / .skip_to()                      # the schedule's other moves
     driver.settle(renderer, images, masks, material)         # the end: keep the specular texture?
     driver.state() / driver.restore(state, images, masks)   # the schedule's position, for --resume
 
@@ -53,18 +53,6 @@ class MaterialDriver:
     def stage(self) -> str:
         """The stage the next cycle runs (MaterialSchedule.STAGES)."""
         return self.schedule.stage
-
-    def skip_rest(self) -> None:
-        """End the schedule now (a diffuse-only scene has no specular lobe to texture)."""
-        self.schedule.stage = "done"
-
-    def skip_to(self, stage: str) -> None:
-        """Go on to ``stage`` now (MaterialSchedule.skip_to)."""
-        self.schedule.skip_to(stage)
-
-    def refine(self, last: str = "specular") -> None:
-        """The surface moved under the finished material: its last stage runs again."""
-        self.schedule.refine(last)
 
     def material(self, mesh: Mesh, cameras: list[Camera], images: list[np.ndarray],
                  masks: list[np.ndarray] | None) -> MeshColorMaterial:

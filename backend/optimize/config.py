@@ -66,7 +66,7 @@ class ReconstructConfig:
     level_tolerance: float = 0.003
     min_levels: int = 1  # levels run before the level_tolerance test may end refinement
     # with --material staged: geometry rounds at the final face count under the fitted material
-    # (see Reconstruction._polish), while a round lowers the validation loss by polish_tolerance
+    # (see optimize.run.Reconstruction._polish), while a round lowers the validation loss by polish_tolerance
     polish_rounds: int = 4
     polish_tolerance: float = 0.01
     # a polish round keeps its step and ends when the mean of the last polish_window validation

@@ -1,13 +1,5 @@
-"""When to stop a level, when to stop refining, and the image size of each level.
-
-Convergence is judged on the loss over a fixed validation subset of views, rendered with a
-fixed seed, so two evaluations differ only through the surface. A level has *plateaued*
-when ``patience`` evaluations in a row fail to improve the best loss by more than
-``tolerance`` (relative; default 0.5 %, well above the seed-fixed Monte Carlo jitter of a
-converged mesh, well below the gains of a level that is still moving). The run stops
-refining when a level at the same image size as the previous one improves the best
-validation loss by less than ``level_tolerance`` (default 0.3 %: levels that still gain
-accuracy improve the loss by more)."""
+"""When a level has converged, whether another level is worth running, each level's image
+size, and what the level a time budget cut off was expected to buy (the rules: ``Plateau``)."""
 
 from __future__ import annotations
 
@@ -17,6 +9,19 @@ from dataclasses import dataclass, field
 
 @dataclass
 class Plateau:
+    """A level's validation losses: ``update`` says whether one is a new best, ``converged``
+    whether ``patience`` evaluations in a row were not.
+
+    Convergence is judged on the loss over a fixed validation subset of views, rendered with a
+    fixed seed, so two evaluations differ only through the surface. A level has *plateaued*
+    when ``patience`` evaluations in a row fail to improve the best loss by more than
+    ``tolerance`` (relative; default 0.5 %, well above the seed-fixed Monte Carlo jitter of a
+    converged mesh, well below the gains of a level that is still moving). The run stops
+    refining when a level at the same image size as the previous one improves the best
+    validation loss by less than ``level_tolerance`` (default 0.3 %: levels that still gain
+    accuracy improve the loss by more).
+    """
+
     tolerance: float = 0.005
     patience: int = 3
     best: float = math.inf
@@ -47,6 +52,22 @@ def keeps_improving(previous, current, tolerance: float) -> bool:
     if previous is None or previous.size != current.size:
         return True
     return current.loss < previous.loss * (1 - tolerance)
+
+
+def levels_end(config, state, budget, record) -> str | None:
+    """Why no level follows ``record`` (the level just run; ``state``: the RunState that holds
+    it, ``budget``: the run's Budget), or None when another one does."""
+    c, s = config, state
+    previous = s.levels[-2] if len(s.levels) > 1 else None
+    if budget.out(budget.geometry_reserve()):
+        return "iterations" if budget.out_of_iterations() else "time budget"
+    if s.level + 1 >= c.max_levels:
+        return "max levels"
+    if s.level + 1 >= c.min_levels and not keeps_improving(previous, record, c.level_tolerance):
+        return "converged"
+    if s.budget.limit > c.max_faces:
+        return "max faces"
+    return None
 
 
 def next_level(levels: list, levels_ended: str | None, gains: list[dict], size: int) -> dict | None:

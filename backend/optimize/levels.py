@@ -1,16 +1,5 @@
-"""``LevelRun`` and ``PolishRun``: one run of vertex steps at one image size.
-
-A level optimises the vertices (Laplacian-preconditioned steps, several views per step,
-fixed seeds) with joint material steps, halves its step when the validation loss plateaus
-and backtracks to its best surface when the loss rises by ``backtrack``; after a backtrack
-the material steps stop first.
-
-A polish round starts from a converged surface under the finished material, which stays
-frozen (noisy joint steps would blur the fitted textures). There single validation losses
-swing by several per cent between evaluations while held-out views keep improving, so a
-round grows into its step over ``polish_warmup`` steps and keeps it; it backtracks only when
-a loss is ``polish_divergence`` above the best, and ends when the mean of the last
-``polish_window`` losses stops setting new bests."""
+"""``LevelRun`` and ``PolishRun``: one run of vertex steps at one image size, on a ``Fit``
+(the run's inputs and state); the rules of each: their class docstrings."""
 
 from __future__ import annotations
 
@@ -71,7 +60,20 @@ def skip(state: RunState, emit, why: str) -> None:
 
 class LevelRun:
     """One geometry level on ``fit``; call it once for its LevelRecord (appended to
-    ``fit.state.levels``); ``validation`` is then its last validation loss."""
+    ``fit.state.levels``); ``validation`` is then its last validation loss.
+
+    A level optimises the vertices (Laplacian-preconditioned steps, several views per step,
+    fixed seeds) with joint material steps, halves its step when the validation loss plateaus
+    and backtracks to its best surface when the loss rises by ``backtrack``; after a backtrack
+    the material steps stop first.
+
+    A polish round starts from a converged surface under the finished material, which stays
+    frozen (noisy joint steps would blur the fitted textures). There single validation losses
+    swing by several per cent between evaluations while held-out views keep improving, so a
+    round grows into its step over ``polish_warmup`` steps and keeps it; it backtracks only when
+    a loss is ``polish_divergence`` above the best, and ends when the mean of the last
+    ``polish_window`` losses stops setting new bests.
+    """
 
     stage = "geometry"
     material_steps = True  # joint material steps (until the first backtrack)
@@ -235,7 +237,7 @@ class LevelRun:
 
 
 class PolishRun(LevelRun):
-    """One polish round: the material frozen, a steady step (see the module's docstring)."""
+    """One polish round: the material frozen, a steady step (see ``LevelRun``)."""
 
     stage = "polish"
     material_steps = False

@@ -20,7 +20,7 @@ from ..render.scene import RenderSettings
 from .appearance import Appearance
 from .budget import Budget
 from .config import ReconstructConfig
-from .convergence import keeps_improving, level_size, next_level
+from .convergence import level_size, levels_end, next_level
 from .levels import Fit, LevelRun, PolishRun
 from .objective import Objective
 from .progress import LockedEmitter, Paced, Progress, StopOnProgress
@@ -113,7 +113,7 @@ class Reconstruction:
         self.budget = self.paced.budget = Budget(config, self.state, staged=self.appearance.staged)
         self.accuracy.clock = self.budget.elapsed
         self.validation: float | None = None  # the last validation loss a level computed
-        self.truth = self._truth()
+        self.truth = truth_mesh(capture)
         self.last_snapshot = 0.0
         self.snapshot_seconds = 0.0  # what the last snapshot took to write
         self.stiffness = None
@@ -134,14 +134,12 @@ class Reconstruction:
             self._finish()
         return 0
 
-    progress = property(lambda self: self.paced.progress)
-
     # -- start -------------------------------------------------------------------------------------
     def _start(self, planner) -> None:
         c, s = self.config, self.state
         start = time.perf_counter()
         self.emit("stage", stage="init", level=0, faces=0)
-        self.progress.update(force=True, stage="init", level=0, iteration=0, iterations=0, loss=None, faces=0)
+        self.paced.progress.update(force=True, stage="init", level=0, iteration=0, iterations=0, loss=None, faces=0)
         s.mesh, kind = initial_mesh(self.capture, c.init, c.initial_faces,
                                     warn=lambda message: self.emit("warning", message=message))
         check_lights_outside(self.capture, s.mesh, kind)
@@ -150,12 +148,13 @@ class Reconstruction:
         s.material_kind = self.material.KIND
         lit = self.appearance.light_first(s.mesh, self.material, coarse)
         self.appearance.decide(s.mesh, self.material, coarse, reason="initial mesh")
-        self._choose_stiffness(coarse)
+        self.stiffness = choose_stiffness(self.config, coarse, spatially_varying=self.appearance.staged)
+        self.emit("stiffness", **self.stiffness.event())
         s.budget = FaceBudget(s.mesh.n_faces, growth=c.face_growth)
         s.timed("init", start)
         if planner is not None:
             with self.budget.uncharged():
-                planned = planner(self.capture, self.viewset, self._settings(),
+                planned = planner(self.capture, self.viewset, self.appearance.geometry_settings(RenderSettings.for_geometry(self.config)),
                                   self.appearance.material_settings(RenderSettings.for_geometry(c)), s.mesh,
                                   self.accuracy.held)
             self.budget.remaining, s.level_limit = (None, None) if planned is None else planned
@@ -179,10 +178,7 @@ class Reconstruction:
         coarse = self.viewset.at(self.config.coarse_size)
         self.appearance.restore(s.appearance, coarse)
         self.appearance.decide(s.mesh, self.material, coarse, reason="resumed")
-        self._choose_stiffness(coarse)
-
-    def _choose_stiffness(self, views) -> None:
-        self.stiffness = choose_stiffness(self.config, views, spatially_varying=self.appearance.staged)
+        self.stiffness = choose_stiffness(self.config, coarse, spatially_varying=self.appearance.staged)
         self.emit("stiffness", **self.stiffness.event())
 
     # -- the phases --------------------------------------------------------------------------------
@@ -196,17 +192,20 @@ class Reconstruction:
 
     def _levels(self) -> None:
         """Geometry levels, each followed by a material cycle and a snapshot, with a transition
-        (re-mesh or subdivide) between two, until ``_levels_end`` gives a reason."""
+        (re-mesh or subdivide) between two, until ``levels_end`` gives a reason."""
         s = self.state
         while True:
             if s.phase == "level":
                 record = self._level(LevelRun)
                 s.phase = "transition"
                 self.track("level")
-                if self._material_cycle(record):
+                views = self.viewset.at(level_size(s.level, self.config.coarse_size, self.config.max_size))
+                cycle = self.appearance.level_cycle(s.mesh, self.material, views, s.level)
+                if cycle is not None:
+                    record.add_cycle(cycle)
                     self.track("material")
                 self.snapshot(loss=record.loss)
-                s.levels_ended = self._levels_end(record)
+                s.levels_ended = levels_end(self.config, s, self.budget, record)
                 if s.levels_ended:
                     return
             transition(self._fit(), self.appearance)
@@ -226,7 +225,7 @@ class Reconstruction:
 
     def _fit(self) -> Fit:
         return Fit(self.capture, self.config, self.state, self.viewset, self.material, self.budget, self.stiffness,
-                   self._settings(), self.emit, self.progress, self.folder.check_stop, self._checkpoint,
+                   self.appearance.geometry_settings(RenderSettings.for_geometry(self.config)), self.emit, self.paced.progress, self.folder.check_stop, self._checkpoint,
                    self.objective_factory)
 
     def _checkpoint(self, vertices, loss: float, validation: float | None) -> None:
@@ -239,20 +238,6 @@ class Reconstruction:
             self.snapshot(loss=loss)
         if self.accuracy.due():
             self.track("every", Mesh(vertices, s.mesh.faces))
-
-    def _levels_end(self, record: LevelRecord) -> str | None:
-        """Why no level follows ``record`` (None: another one does)."""
-        c, s = self.config, self.state
-        previous = s.levels[-2] if len(s.levels) > 1 else None
-        if self.budget.out(self.budget.geometry_reserve()):
-            return "iterations" if self.budget.out_of_iterations() else "time budget"
-        if s.level + 1 >= c.max_levels:
-            return "max levels"
-        if s.level + 1 >= c.min_levels and not keeps_improving(previous, record, c.level_tolerance):
-            return "converged"
-        if s.budget.limit > c.max_faces:
-            return "max faces"
-        return None
 
     def _polish(self) -> None:
         """Alternate geometry and material until the loss stops improving (as the paper does):
@@ -271,17 +256,6 @@ class Reconstruction:
             self._finish_materials()
             if record.loss > record.loss_start * (1 - c.polish_tolerance):
                 break
-
-    def _material_cycle(self, record: LevelRecord) -> bool:
-        """The effects re-checked while the lobe is off, then one stage of the staged material
-        schedule, on this level's geometry and views; whether a cycle ran."""
-        s = self.state
-        views = self.viewset.at(level_size(s.level, self.config.coarse_size, self.config.max_size))
-        self.appearance.recheck(s.mesh, self.material, views, s.level)
-        result = self.appearance.material_cycle(s.mesh, self.material, views, s.level)
-        if result is not None:
-            record.add_cycle(result)
-        return result is not None
 
     def _finish_materials(self, most: int = 12) -> None:
         """Once geometry has converged: material stages until their schedule ends."""
@@ -304,10 +278,6 @@ class Reconstruction:
             self.track("material")
             self.snapshot(loss=result["loss"])
         self.appearance.judge_relight(s.mesh, self.material)
-
-    # -- what the levels use --------------------------------------------------------------------------
-    def _settings(self) -> RenderSettings:
-        return self.appearance.geometry_settings(RenderSettings.for_geometry(self.config))
 
     def track(self, why: str, mesh: Mesh | None = None) -> None:
         """Score the held-out views (--track-accuracy; planning/tracking.py) with ``mesh`` (default
@@ -386,8 +356,11 @@ class Reconstruction:
         fsio.write_json(self.folder.path / "report.json", report)
         self.emit("done", result="result.ply", report="report.json", metrics=metrics, next_level=expected)
 
-    def _truth(self) -> Mesh | None:
-        rel = self.capture.ground_truth.get("mesh") if self.capture.ground_truth else None
-        path = self.capture.path(rel) if rel else None
-        return load_mesh(path) if path is not None and Path(path).is_file() else None
+
+
+def truth_mesh(capture: Capture) -> Mesh | None:
+    """The capture's ground-truth mesh, when it names one that exists."""
+    rel = capture.ground_truth.get("mesh") if capture.ground_truth else None
+    path = capture.path(rel) if rel else None
+    return load_mesh(path) if path is not None and Path(path).is_file() else None
 

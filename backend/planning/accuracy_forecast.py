@@ -1,34 +1,5 @@
-"""Predicted held-out accuracy of each preset on *this* capture, measured before optimising.
-
-How well a run will render views it never fitted depends on the capture more than on the
-preset: its textures, its noise, how far the visual hull is from the object. One calibration
-scene cannot know that (the dragon's held-out PSNR says nothing about a textured teacup), so
-the prediction starts from a measurement on the capture itself:
-
-    probe            = held-out PSNR of the run's initial mesh with its first material
-                       cycles fitted (the constant stage, then one diffuse cycle, at the
-                       coarse size, under the run's lighting: captured, or estimated / flash
-                       fitted with it as the run fits it)
-    predicted(preset) = probe + gain(preset)
-
-``probe`` measures what the capture's appearance allows on the starting shape; ``gain`` is
-what the preset's geometry levels, finer textures and specular stage add on top of that,
-calibrated as the median over captures that are not used to test the prediction
-(``GAINS_FILE``, with the largest distance from that median as the prediction's spread;
-``bench plan`` compares predicted and measured on others). The gain holds at the image sizes
-it was calibrated at: a probe scored at a finer size than every calibration capture's starts
-further below what the run's finer levels reach (the hull's error and a coarse texture show
-more), so such a prediction is marked ``finer`` (:func:`extrapolated`) and shown as a floor,
-"21+ dB", without a spread. Two refinements are recorded in
-the file and not used, because each did worse on held-out captures it had not seen
-(docs/results.md, "Predicted time"): a median per kind of lighting (an environment map, or
-lights fixed to the cameras), and a line in the probe's PSNR (``fit_line``).
-
-Held-out views are those ``--track-accuracy`` scores (``accuracy.split``: the capture's
-ground-truth held-out views, else every ``held_out_every``-th view, left out of the probe's
-fit), rendered as the tracker renders them, so that the prediction and the run's
-``accuracy_time`` measure the same thing. The probe runs on copies: the run's material,
-lighting and capture are not touched."""
+"""Each preset's held-out PSNR on *this* capture, before the run: a probe's held-out PSNR
+on the initial mesh plus the preset's calibrated gain (the model: ``probe``)."""
 
 from __future__ import annotations
 
@@ -51,12 +22,43 @@ GAINS_FILE = Path(__file__).resolve().parents[1] / "forecast.json"  # written by
 def probe(capture, config, held=None, mesh=None) -> dict | None:
     """The probe's held-out PSNR on ``capture``, or None when nothing can be held out or the
     material is not the staged one (the gains are calibrated with it). ``config``: the probe's
-    settings (``job.probe_config``); ``held``: the views (``accuracy.HeldOut``) a run already
+    settings (``job.probe_config``); ``held``: the views (``tracking.HeldOut``) a run already
     holds out of ``capture`` (``--track-accuracy``), else the probe holds out the same ones
     itself. The initial mesh is made as the run makes it, from the fitted views only (``mesh``:
     the run's own, when it was made so with the probe's settings). Returns
     {"psnr", "seconds", "views", "source", "cycles", "faces", "size" (the scored images' long
-    side, px), "lighting_kind"}."""
+    side, px), "lighting_kind"}.
+
+    How well a run will render views it never fitted depends on the capture more than on the
+    preset: its textures, its noise, how far the visual hull is from the object. One calibration
+    scene cannot know that (the dragon's held-out PSNR says nothing about a textured teacup), so
+    the prediction starts from a measurement on the capture itself:
+
+        probe            = held-out PSNR of the run's initial mesh with its first material
+                           cycles fitted (the constant stage, then one diffuse cycle, at the
+                           coarse size, under the run's lighting: captured, or estimated / flash
+                           fitted with it as the run fits it)
+        predicted(preset) = probe + gain(preset)
+
+    ``probe`` measures what the capture's appearance allows on the starting shape; ``gain`` is
+    what the preset's geometry levels, finer textures and specular stage add on top of that,
+    calibrated as the median over captures that are not used to test the prediction
+    (``GAINS_FILE``, with the largest distance from that median as the prediction's spread;
+    ``bench plan`` compares predicted and measured on others). The gain holds at the image sizes
+    it was calibrated at: a probe scored at a finer size than every calibration capture's starts
+    further below what the run's finer levels reach (the hull's error and a coarse texture show
+    more), so such a prediction is marked ``finer`` (:func:`extrapolated`) and shown as a floor,
+    "21+ dB", without a spread. Two refinements are recorded in
+    the file and not used, because each did worse on held-out captures it had not seen
+    (docs/results.md): a median per kind of lighting (an environment map, or
+    lights fixed to the cameras), and a line in the probe's PSNR (``fit_line``).
+
+    Held-out views are those ``--track-accuracy`` scores (``tracking.split``: the capture's
+    ground-truth held-out views, else every ``held_out_every``-th view, left out of the probe's
+    fit), rendered as the tracker renders them, so that the prediction and the run's
+    ``accuracy_time`` measure the same thing. The probe runs on copies: the run's material,
+    lighting and capture are not touched.
+    """
     from ..geometry.init import initial_mesh  # these need the Mitsuba variant chosen (the plan's caller does)
     from ..optimize.appearance import Appearance
     from . import tracking
@@ -122,7 +124,7 @@ def fit_line(pairs: list[tuple[float, float]]) -> dict | None:
 def gain(gains: dict, preset: str) -> tuple[float, float | None] | None:
     """(gain, spread) in dB of ``preset``: the median gain, the spread at least
     ``SPREAD_FLOOR_DB``; None when the preset has no calibrated gain. The file's ``line`` and
-    ``kinds`` are records, not used (see the module docstring)."""
+    ``kinds`` are records, not used (see ``probe``)."""
     entry = gains.get(preset)
     if not entry:
         return None

@@ -1,12 +1,6 @@
-"""The ``reconstruct`` command's job: request (its parsed options) → checked config → run.
-
-:func:`run` takes the command's options (an ``argparse.Namespace`` or anything with the same
-attributes), checks them into a :class:`ReconstructConfig` (defaults, then the preset or the
-one that fits ``--time-budget``, then ``$SFT_RECONSTRUCT_SETTINGS``, then the options given),
-resolves the capture (a folder, or a video written to RUN/capture) and its lighting, and
-either prints ``--plan`` or runs :func:`backend.optimize.run.reconstruct` into the run
-folder, returning its exit code. Shared by the command and anything that starts a run from
-options (:func:`config_from_args` is also what tests and the presets' plan use)."""
+"""The ``reconstruct`` command's application layer: request (its parsed options) → checked
+config (``config_from_args``) → the preset event and plan → ``optimize.run.reconstruct``, with
+the held-out tracker and the time-left estimate it is given (``run``)."""
 
 from __future__ import annotations
 
@@ -142,7 +136,16 @@ def _absolute(option: str, value: str) -> str:
 
 def run(args) -> int:
     """One ``reconstruct`` request, start to end: its exit code (0 done, 130 cancelled; bad
-    input raises :class:`InputError`)."""
+    input raises :class:`InputError`).
+
+    :func:`run` takes the command's options (an ``argparse.Namespace`` or anything with the same
+    attributes), checks them into a :class:`ReconstructConfig` (defaults, then the preset or the
+    one that fits ``--time-budget``, then ``$SFT_RECONSTRUCT_SETTINGS``, then the options given),
+    resolves the capture (a folder, or a video written to RUN/capture) and its lighting, and
+    either prints ``--plan`` or runs :func:`backend.optimize.run.reconstruct` into the run
+    folder, returning its exit code. Shared by the command and anything that starts a run from
+    options (:func:`config_from_args` is also what tests and the presets' plan use).
+    """
     from ..material.constant import parse_spec  # loads Mitsuba: only once a run starts, not on import
 
     if args.resume and args.material is None:

@@ -1,7 +1,6 @@
 """A capture's step costs, measured: seconds per view of a geometry step, a validation render
 and a material step at a few image sizes and face counts, fitted as a + b * pixels + c * faces
-(``StepCosts``). The plan (planning/time_plan.py) multiplies them by a preset's steps; its module
-docstring states the model."""
+(``StepCosts``); planning/time_plan.py's ``predict`` multiplies them by a preset's steps."""
 
 from __future__ import annotations
 

@@ -1,20 +1,5 @@
-"""Held-out accuracy against run time (``--track-accuracy``; docs/method.md).
-
-Which views are scored (``split``): a synthetic capture's own ground-truth held-out views
-(``ground_truth.held_out``, a separate capture folder) when it has them, and then every
-view of the capture is fitted as without tracking; otherwise every ``held_out_every``-th
-view of the capture (``check_views``: the same choice as the specular check's), and those
-views are left out of everything the run fits (initialisation, geometry, material,
-validation). Too few views to hold any out: not tracked, with a warning.
-
-``AccuracyTracker`` scores up to ``accuracy_views`` of them, at ``accuracy_size`` px and
-``accuracy_spp`` spp (x ``ENV_SPP_FACTOR`` under an environment map) with the current mesh
-and material under the run's fitted lighting
-(backend.lighting.fitted, as ``evaluate`` renders them: the views' own lights x the light
-factor, the estimated map, or the flash at each view's camera), every ``accuracy_every_s``
-seconds of run time and at every level's and stage's end: the mean PSNR on sRGB within the
-masks (backend.metrics.image). The run does not charge that time to its budget. Each score is an ``accuracy`` event and a point of ``report.json``
-``accuracy_time``; ``RUN/accuracy_time.png`` (tracking_figure) is redrawn after each one."""
+"""Held-out accuracy against run time (``--track-accuracy``): which views are held out of
+the fit (``split``) and their PSNR scored while the run goes (``AccuracyTracker``)."""
 
 from __future__ import annotations
 
@@ -54,7 +39,12 @@ class HeldOut:
 
 
 def split(capture: Capture, config) -> tuple[Capture, HeldOut]:
-    """(the capture the run fits, its held-out views) by the module docstring's rule."""
+    """(the capture the run fits, its held-out views): a synthetic capture's own ground-truth
+    held-out views (``ground_truth.held_out``, a separate capture folder) when it has them, and
+    then every view of the capture is fitted as without tracking; otherwise every
+    ``held_out_every``-th view (``check_views``: the same choice as the specular check's), left
+    out of everything the run fits (initialisation, geometry, material, validation). Too few
+    views to hold any out: none, with a ``note``."""
     n = len(capture.frames)
     if not config.track_accuracy:
         return capture, HeldOut(fitted=n)
@@ -98,7 +88,15 @@ class _Marking:
 
 @dataclass
 class AccuracyTracker:
-    """The held-out series of one run (see the module docstring)."""
+    """The held-out series of one run: it scores up to ``accuracy_views`` of them, at ``accuracy_size`` px and
+    ``accuracy_spp`` spp (x ``ENV_SPP_FACTOR`` under an environment map) with the current mesh
+    and material under the run's fitted lighting
+    (backend.lighting.fitted, as ``evaluate`` renders them: the views' own lights x the light
+    factor, the estimated map, or the flash at each view's camera), every ``accuracy_every_s``
+    seconds of run time and at every level's and stage's end: the mean PSNR on sRGB within the
+    masks (backend.metrics.image). The run does not charge that time to its budget. Each score
+    is an ``accuracy`` event and a point of ``report.json`` ``accuracy_time``; ``RUN/accuracy_time.png`` (tracking_figure) is redrawn after each one.
+    """
 
     held: HeldOut
     config: object
