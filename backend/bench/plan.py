@@ -2,7 +2,7 @@
 
 ``python -m backend bench plan --out OUT [--preset draft] [--captures a,b,...]`` synthesises
 ten small captures of different kinds, none of which set a constant of the cost model
-(optimize/plan.py), the accuracy gains (optimize/forecast.py) or the calibration (``bench
+(planning/time_plan.py), the accuracy gains (planning/accuracy_forecast.py) or the calibration (``bench
 calibrate``), and runs ``reconstruct CAPTURE --preset PRESET --track-accuracy`` on each with
 every other default (staged material, effects measured), as child processes, one after the
 other:
@@ -41,7 +41,7 @@ from pathlib import Path
 from .. import fsio
 from ..errors import InputError, require
 from ..events import Emitter
-from ..optimize.forecast import GAINS_FILE, fit_line
+from ..planning.accuracy_forecast import GAINS_FILE, fit_line
 from ._data import SHARED_DATA
 from ._machine import code_version, machine
 from ._replan import CHECKPOINTS, said_errors
@@ -280,7 +280,7 @@ def write_gain(path: Path, preset: str, rows: list[dict], doc: dict) -> None:
                                     for r in rows},
                        "code": doc["code"], "measured": doc["measured"], "machine": doc["machine"]}
     fsio.write_json(path, {"about": "held-out PSNR gain of each preset over the capture's accuracy probe "
-                                    "(optimize/forecast.py); python -m backend bench plan --calibrate --preset P",
+                                    "(planning/accuracy_forecast.py); python -m backend bench plan --calibrate --preset P",
                            "presets": presets})
     per_kind = ", ".join(f"{k} {v['gain_db']:+.2f} dB over {len(v['captures'])}" for k, v in kinds.items())
     fitted = "" if line is None else f"; line {line['intercept']:+.2f} + {line['slope']:.3f} x probe dB"

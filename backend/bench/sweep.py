@@ -41,7 +41,7 @@ from ..events import Emitter
 from ..geometry.mesh import Mesh, load_mesh
 from ..metrics.image import image_metrics
 from ..optimize.config import ReconstructConfig
-from ..optimize.presets import PRESETS
+from ..planning.presets import PRESETS
 from . import _all, _report
 from ._machine import REPO, code_version, machine, machine_line  # noqa: F401  (bench/effects imports them from here)
 from ._ray import require_ray, run_tasks

@@ -2,8 +2,8 @@
 
 Both scorers of a run's held-out views take it from here: ``evaluate`` on a finished run's
 folder (backend.metrics.evaluate, via :func:`from_run`: report.json and RUN/environment.exr)
-and ``--track-accuracy`` during a run (via :func:`from_live`: the run's lighting model and
-material). :func:`light_views` then lights the views:
+and ``--track-accuracy`` during a run (backend.planning.tracking, via :func:`from_live`: the
+run's lighting model and material). :func:`light_views` then lights the views:
 
 - ``captured``: the views' own point lights and map, the map x the staged material's fitted
   light factor (the factor scales the environment only, as in the fit);

@@ -12,7 +12,7 @@ import pytest
 
 from backend.bench import _pareto, calibrate, sweep
 from backend.geometry.mesh import load_mesh
-from backend.optimize.presets import preset_for_budget
+from backend.planning.presets import preset_for_budget
 
 
 @pytest.fixture(scope="module")

@@ -1,43 +1,6 @@
-"""The plan: what each quality preset will cost on *this* capture, measured before optimising.
-
-Model. A run's time is its steps times what a step costs on this capture, plus a fixed part:
-
-    step(size, faces) = k * g(p, f) + (2 V / eval_every) * r(p, f)
-    g, r, m(p, f)     = a + b * p + c * f      (least squares over the measured points, each >= 0)
-
-``g`` is one view's share of a two-view forward+backward geometry step
-(``Objective.loss_and_grad``; the per-call overhead is shared as in a run's step), ``r`` one
-view's forward render at half the validation samples (a validation loss renders each of its
-V views twice every ``eval_every`` steps), ``m`` one view's material-only gradient step;
-``p`` is the pixels of one view at the level's size (the capture's aspect, capped at its
-resolution), ``f`` the faces, ``k`` the preset's views per step. They are timed on this
-capture (cameras, lights, image sizes) with the run's render settings, after an untimed step
-that compiles the kernels, on the run's initial mesh split to the largest face count the
-levels reach (``probe_mesh``; icospheres for ``--plan``), at the smallest and the largest
-image size: four points, three coefficients.
-
-A preset's levels follow its settings: level l renders at ``level_size(l)`` with the faces
-the face budget gives after l subdivisions (``FaceBudget``); ``levels`` and ``steps`` per
-level are the calibration run's (``presets.json``), else ``max_levels`` x ``level_iterations``.
-A level ends on its own convergence; one whose validation loss keeps creeping down (mesh
-colors fitted jointly on a textured object) would run to ``level_iterations``, so a run that
-follows a calibrated plan stops each level at ``LEVEL_SLACK`` times the planned steps
-(``PresetPlan.level_limit``; the later levels, the final stages and the polish get the time).
-With the staged material (the default) every level is followed by one material cycle of
-``FitSettings.iterations`` one-view steps and a full-view evaluation, geometry convergence by
-``FINAL_MATERIAL_CYCLES`` cycles four times as long, and ``POLISH_ROUNDS`` (at most
-``polish_rounds``) polish rounds of ``POLISH_STEPS`` steps, each with a refinement cycle (not
-when an iteration cap ends the run with its levels). A
-fitted lighting (``estimate``, ``flash``) adds ``light_first_cycles`` cycles before level 0.
-``FIXED_SECONDS`` covers start, loading, initialisation and the effects decision. A time
-budget or an iteration cap cuts the prediction where the run would stop.
-
-A run plans its ``preset`` event with the effects it decided (``reconstruct``'s planner);
-``--plan`` decides nothing and times the likely settings (``geometry_settings``). Shadow
-gradients are charged at the samples a level keeps (``optimize.shadow_samples``). Step counts
-come from the calibration scene lit as the capture is; a re-mesh is left out. Each preset's
-held-out PSNR comes from optimize/forecast.py. ``bench plan`` compares predicted and measured
-(docs/results.md, "Predicted time")."""
+"""The plan: what each quality preset will cost on *this* capture, before the run; a
+preset's time is its steps times this capture's measured step costs (planning/step_costs.py)
+plus a fixed part (the model: ``predict``)."""
 
 from __future__ import annotations
 
@@ -48,13 +11,14 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..geometry.simplify import FaceBudget
+from ..optimize.convergence import level_size
+from ..optimize.views import ViewSet, validation_views
+from .accuracy_forecast import extrapolated, gain, load_gains, predicted_psnr
 from .remaining import Phase
-from .schedule import level_size
 from .step_costs import MAX_PROBE_FACES, Point, StepCosts, fit, measure, pixels_for, probe_mesh  # noqa: F401 (the plan's API)
-from .views import validation_views
 
 FIXED_SECONDS = 15.0  # process start, loading, initial mesh, effects decision, snapshots, outputs
-# means over staged Draft runs (docs/results.md, "Predicted time"): these end on their own
+# means over staged Draft runs (docs/results.md): these end on their own
 # convergence, so runs differ, and they are the main source of the plan's error
 FINAL_MATERIAL_CYCLES = 4.5  # long cycles (x4 iterations) on the converged geometry before polishing
 POLISH_ROUNDS = 2.5  # each followed by one long refinement cycle
@@ -116,10 +80,10 @@ class PresetPlan:
     budget_s: float | None = None
     level_limit: int | None = None  # steps after which a level ends (calibrated steps only)
     expected_f1: float | None = None  # on the calibration scene
-    predicted_psnr: float | None = None  # held-out, from this capture's probe (optimize/forecast.py)
+    predicted_psnr: float | None = None  # held-out, from this capture's probe (planning/accuracy_forecast.py)
     psnr_spread: float | None = None  # the calibration captures' largest distance from their median gain
     psnr_extrapolated: str | None = None  # "finer"/"coarser": scored at a size no calibration capture was
-    phases: list[Phase] = dataclasses.field(default_factory=list)  # in order, for optimize/remaining.py
+    phases: list[Phase] = dataclasses.field(default_factory=list)  # in order, for planning/remaining.py
 
     @property
     def unbounded_seconds(self) -> float:
@@ -140,7 +104,7 @@ class PresetPlan:
 
     def psnr_text(self) -> str | None:
         """'≈ 24 ± 2 dB'; '21+ dB' for a capture scored finer than the calibration's (a floor:
-        optimize/forecast.py); None without a prediction."""
+        planning/accuracy_forecast.py); None without a prediction."""
         return psnr_text(self.predicted_psnr, self.psnr_spread, self.psnr_extrapolated)
 
     def to_json(self) -> dict:
@@ -158,7 +122,47 @@ class PresetPlan:
 def predict(name: str, config, costs: StepCosts, pixels_at, n_views: int, staged: bool,
             entry: dict | None = None) -> PresetPlan:
     """The predicted time of ``config`` on the capture whose steps ``costs`` measured
-    (``pixels_at(size)``: one view's pixels at a level size)."""
+    (``pixels_at(size)``: one view's pixels at a level size).
+
+    Model. A run's time is its steps times what a step costs on this capture, plus a fixed part:
+
+        step(size, faces) = k * g(p, f) + (2 V / eval_every) * r(p, f)
+        g, r, m(p, f)     = a + b * p + c * f      (least squares over the measured points, each >= 0)
+
+    ``g`` is one view's share of a two-view forward+backward geometry step
+    (``Objective.loss_and_grad``; the per-call overhead is shared as in a run's step), ``r`` one
+    view's forward render at half the validation samples (a validation loss renders each of its
+    V views twice every ``eval_every`` steps), ``m`` one view's material-only gradient step;
+    ``p`` is the pixels of one view at the level's size (the capture's aspect, capped at its
+    resolution), ``f`` the faces, ``k`` the preset's views per step. They are timed on this
+    capture (cameras, lights, image sizes) with the run's render settings, after an untimed step
+    that compiles the kernels, on the run's initial mesh split to the largest face count the
+    levels reach (``probe_mesh``; icospheres for ``--plan``), at the smallest and the largest
+    image size: four points, three coefficients.
+
+    A preset's levels follow its settings: level l renders at ``level_size(l)`` with the faces
+    the face budget gives after l subdivisions (``FaceBudget``); ``levels`` and ``steps`` per
+    level are the calibration run's (``presets.json``), else ``max_levels`` x ``level_iterations``.
+    A level ends on its own convergence; one whose validation loss keeps creeping down (mesh
+    colors fitted jointly on a textured object) would run to ``level_iterations``, so a run that
+    follows a calibrated plan stops each level at ``LEVEL_SLACK`` times the planned steps
+    (``PresetPlan.level_limit``; the later levels, the final stages and the polish get the time).
+    With the staged material (the default) every level is followed by one material cycle of
+    ``FitSettings.iterations`` one-view steps and a full-view evaluation, geometry convergence by
+    ``FINAL_MATERIAL_CYCLES`` cycles four times as long, and ``POLISH_ROUNDS`` (at most
+    ``polish_rounds``) polish rounds of ``POLISH_STEPS`` steps, each with a refinement cycle (not
+    when an iteration cap ends the run with its levels). A
+    fitted lighting (``estimate``, ``flash``) adds ``light_first_cycles`` cycles before level 0.
+    ``FIXED_SECONDS`` covers start, loading, initialisation and the effects decision. A time
+    budget or an iteration cap cuts the prediction where the run would stop.
+
+    A run plans its ``preset`` event with the effects it decided (``reconstruct``'s planner);
+    ``--plan`` decides nothing and times the likely settings (``geometry_settings``). Shadow
+    gradients are charged at the samples a level keeps (``optimize.shadow_samples``). Step counts
+    come from the calibration scene lit as the capture is; a re-mesh is left out. Each preset's
+    held-out PSNR comes from planning/accuracy_forecast.py. ``bench plan`` compares predicted and measured
+    (docs/results.md).
+    """
     c = config
     plan, source = levels(c, entry)
     limit = level_limit(c, entry)
@@ -238,7 +242,7 @@ class Plan:
     costs: StepCosts
     presets: dict[str, PresetPlan]
     settings: dict
-    probe: dict | None = None  # forecast.probe's measurement, the predicted PSNRs' start
+    probe: dict | None = None  # accuracy_forecast.probe's measurement, the predicted PSNRs' start
 
     def to_json(self) -> dict:
         return {"costs": self.costs.to_json(), "render_settings": self.settings, "probe": self.probe,
@@ -281,10 +285,7 @@ def make_plan(capture, configs: dict, settings, staged: bool, calibration: dict 
     """Measure this capture's step costs and predict every preset of ``configs`` ({name:
     ReconstructConfig}); ``settings``: the geometry steps' RenderSettings; ``calibration``:
     {preset: calibration entry}; ``initial``: the run's initial mesh (None: icospheres);
-    ``probe``: forecast.probe's measurement, for each preset's predicted held-out PSNR."""
-    from .forecast import extrapolated, gain, load_gains, predicted_psnr
-    from .views import ViewSet
-
+    ``probe``: accuracy_forecast.probe's measurement, for each preset's predicted held-out PSNR."""
     largest = max(c.max_size for c in configs.values())
     viewset = viewset or ViewSet(capture, largest)
     pixels_at = pixels_for(viewset)
@@ -308,7 +309,7 @@ def geometry_settings(config, capture=None, geometry: bool = True) -> "RenderSet
     """The render settings the run will most likely use before its effects decision: the
     config's base for point-lit captures; under an environment map, shadow gradients and one
     bounce (the decision keeps them for objects that shadow themselves); ``--effects`` wins."""
-    from ..render import effects
+    from ..render import effects  # these need the Mitsuba variant chosen (the plan's caller does)
     from ..render.scene import RenderSettings
 
     c = config

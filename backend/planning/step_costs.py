@@ -1,7 +1,6 @@
 """A capture's step costs, measured: seconds per view of a geometry step, a validation render
 and a material step at a few image sizes and face counts, fitted as a + b * pixels + c * faces
-(``StepCosts``). The plan (optimize/plan.py) multiplies them by a preset's steps; its module
-docstring states the model."""
+(``StepCosts``); planning/time_plan.py's ``predict`` multiplies them by a preset's steps."""
 
 from __future__ import annotations
 
@@ -9,10 +8,14 @@ import dataclasses
 import time
 from dataclasses import dataclass, field
 
+import drjit as dr
 import numpy as np
 
-from .shadow_samples import charged_seconds
-from .views import frame_size
+from ..geometry.init.sphere import sphere_mesh
+from ..geometry.subdivide import midpoint
+from ..material import factory
+from ..optimize.shadow_samples import charged_seconds
+from ..optimize.views import frame_size
 
 MAX_PROBE_FACES = 20480  # larger face counts are extrapolated (a probe step there costs seconds)
 
@@ -73,9 +76,6 @@ def fit(samples: list[tuple[float, float, float]]) -> tuple[float, float, float]
 def probe_mesh(capture, faces: int, initial=None):
     """About ``faces`` faces of ``initial`` (the run's initial mesh, split 1-to-4 while that comes
     nearer: its concavities cost shadow and indirect rays a sphere has not), else an icosphere."""
-    from ..geometry.init.sphere import sphere_mesh
-    from ..geometry.subdivide import midpoint
-
     if initial is None:
         return sphere_mesh(capture, faces)
     while initial.n_faces * 2 < faces:
@@ -89,11 +89,8 @@ def measure(capture, viewset, settings, sizes: list[int], faces: list[int], tone
     faces) of ``sizes`` x ``faces`` on this capture with ``settings`` (RenderSettings of the
     geometry steps; the material step with ``material_settings``, default the same), with the
     estimated constant material, on ``probe_mesh`` of ``initial``."""
-    import drjit as dr
-
-    from ..material import factory
-    from .appearance import lit_environment
-    from .objective import Objective
+    from ..optimize.appearance import lit_environment  # these need the Mitsuba variant chosen (the plan's caller does)
+    from ..optimize.objective import Objective
 
     start = time.perf_counter()
     material = factory.create("auto")  # the estimated constant material: trainable, as the material steps need

@@ -1,11 +1,5 @@
-"""Quality presets (Draft / Balanced / Final) and their calibrated cost.
-
-A preset is a set of overrides of ``ReconstructConfig``'s defaults; options given on the
-command line win over it. ``backend/presets.json`` (written by ``python -m backend bench
-calibrate``) records, per preset, the wall clock and F1@0.01 it reached on the dragon
-benchmark on the machine named there (and, under ``kinds``, on the calibration scene of each
-kind of lighting); :func:`preset_for_budget` reads the capture's kind (the dragon's where
-that kind is not calibrated) to turn a time budget into a preset."""
+"""Quality presets (Draft / Balanced / Final): overrides of ``ReconstructConfig``'s defaults,
+and their calibrated cost per kind of lighting (``backend/presets.json``, ``preset_for_budget``)."""
 
 from __future__ import annotations
 
@@ -77,7 +71,15 @@ def preset_for_budget(minutes: float, path: Path = CALIBRATION_FILE, default: st
     passed by.
 
     When none fits, the fastest calibrated preset (it will run against the budget); without a
-    calibration file (or with no usable entries), ``default``."""
+    calibration file (or with no usable entries), ``default``.
+
+    A preset is a set of overrides of ``ReconstructConfig``'s defaults; options given on the
+    command line win over it. ``backend/presets.json`` (written by ``python -m backend bench
+    calibrate``) records, per preset, the wall clock and F1@0.01 it reached on the dragon
+    benchmark on the machine named there (and, under ``kinds``, on the calibration scene of each
+    kind of lighting); :func:`preset_for_budget` reads the capture's kind (the dragon's where
+    that kind is not calibrated) to turn a time budget into a preset.
+    """
     entries = calibrated(path, kind) or calibrated(path)
     if not entries:
         return default

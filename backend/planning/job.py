@@ -1,12 +1,6 @@
-"""The ``reconstruct`` command's job: request (its parsed options) → checked config → run.
-
-:func:`run` takes the command's options (an ``argparse.Namespace`` or anything with the same
-attributes), checks them into a :class:`ReconstructConfig` (defaults, then the preset or the
-one that fits ``--time-budget``, then ``$SFT_RECONSTRUCT_SETTINGS``, then the options given),
-resolves the capture (a folder, or a video written to RUN/capture) and its lighting, and
-either prints ``--plan`` or runs :func:`backend.optimize.run.reconstruct` into the run
-folder, returning its exit code. Shared by the command and anything that starts a run from
-options (:func:`config_from_args` is also what tests and the presets' plan use)."""
+"""The ``reconstruct`` command's application layer: request (its parsed options) → checked
+config (``config_from_args``) → the preset event and plan → ``optimize.run.reconstruct``, with
+the held-out tracker and the time-left estimate it is given (``run``)."""
 
 from __future__ import annotations
 
@@ -14,20 +8,22 @@ import dataclasses
 import json
 import math
 import os
+from contextlib import contextmanager
 from pathlib import Path
 from types import SimpleNamespace
 
-from .. import variant
+from .. import interrupt, variant
 from ..capture.format import FILENAME
 from ..capture.load import load_capture
 from ..errors import InputError, require
 from ..events import Emitter, read_log
 from ..lighting.modes import resolve_lighting
 from ..video.inputs import check_inputs, write_capture
-from .config import STAGED_FACE_GROWTH, ReconstructConfig
-from .plan import capture_plan, make_plan
+from ..optimize.config import STAGED_FACE_GROWTH, ReconstructConfig
+from ..optimize.run_folder import RunFolder
 from .presets import DEFAULT, PRESETS, calibrated, calibration_scene, lighting_kind, preset_for_budget
-from .run_folder import RunFolder
+from .remaining import Remaining, resumed
+from .time_plan import capture_plan, make_plan
 
 OVERRIDES = ("init", "material", "effects", "initial_faces", "iterations", "seed", "max_size", "coarse_size", "views_per_step",
              "integrator", "max_depth", "spp", "remesh", "max_levels", "level_iterations", "step", "lambda_",
@@ -140,7 +136,16 @@ def _absolute(option: str, value: str) -> str:
 
 def run(args) -> int:
     """One ``reconstruct`` request, start to end: its exit code (0 done, 130 cancelled; bad
-    input raises :class:`InputError`)."""
+    input raises :class:`InputError`).
+
+    :func:`run` takes the command's options (an ``argparse.Namespace`` or anything with the same
+    attributes), checks them into a :class:`ReconstructConfig` (defaults, then the preset or the
+    one that fits ``--time-budget``, then ``$SFT_RECONSTRUCT_SETTINGS``, then the options given),
+    resolves the capture (a folder, or a video written to RUN/capture) and its lighting, and
+    either prints ``--plan`` or runs :func:`backend.optimize.run.reconstruct` into the run
+    folder, returning its exit code. Shared by the command and anything that starts a run from
+    options (:func:`config_from_args` is also what tests and the presets' plan use).
+    """
     from ..material.constant import parse_spec  # loads Mitsuba: only once a run starts, not on import
 
     if args.resume and args.material is None:
@@ -157,8 +162,9 @@ def run(args) -> int:
     if choose_preset(args) != before:  # a time budget's preset, by the capture's kind of lighting
         config = dataclasses.replace(config_from_args(args), lighting=config.lighting)
     chosen = variant.choose(args.variant)
-    from .appearance import Appearance  # these need the Mitsuba variant chosen just above
-    from .run import reconstruct, reported
+    from ..optimize.appearance import Appearance  # these need the Mitsuba variant chosen just above
+    from ..optimize.run import reconstruct
+    from . import tracking
 
     if capture is not None:
         Appearance.check(capture, config)
@@ -176,9 +182,30 @@ def run(args) -> int:
             if video is not None:
                 capture = video_capture(video, folder, args.resume, emit)
                 Appearance.check(capture, config)
-            return reconstruct(capture, folder, config, emit, resume=args.resume, planner=planner).exit_code
+            remaining = resumed(folder.events, config.time_budget_s) if args.resume else None  # its plan, phases done
+            return reconstruct(capture, folder, config, emit, resume=args.resume, planner=planner,
+                               tracking=tracking.start, remaining=remaining).exit_code
     finally:
         emit.close()
+
+
+@contextmanager
+def reported(emit):
+    """Errors and interruptions inside become ``error`` / ``cancelled`` events, then propagate."""
+    try:
+        yield
+    except InputError as err:
+        emit("error", message=err.line())
+        raise
+    except KeyboardInterrupt:
+        emit("cancelled", snapshot=None)
+        raise
+    except Exception as err:
+        if interrupt.is_cancel(err):  # an interrupt a native library wrapped (backend/interrupt.py)
+            emit("cancelled", snapshot=None)
+            raise KeyboardInterrupt from None
+        emit("error", message=f"{type(err).__name__}: {err}")
+        raise
 
 
 def _preset_configs(args, names) -> dict:
@@ -187,10 +214,10 @@ def _preset_configs(args, names) -> dict:
 
 
 def _print_plan(args, capture, lighting: str) -> int:
-    """--plan: each preset's predicted time on this capture (optimize/plan.py), printed; no run."""
+    """--plan: each preset's predicted time on this capture (planning/time_plan.py), printed; no run."""
     require(capture is not None, args.capture, "--plan needs a capture folder",
             "write the capture first (capture-from-video), then plan on it")
-    from .forecast import probe  # needs the Mitsuba variant (chosen by the caller)
+    from .accuracy_forecast import probe  # needs the Mitsuba variant (chosen by the caller)
 
     probed = safe_probe(probe, capture, probe_config(args, lighting), warn=lambda m: print(f"warning: {m}", flush=True))
     plan = capture_plan(capture, _preset_configs(args, PRESETS), calibrated(kind=lighting_kind(capture, lighting)),
@@ -203,7 +230,7 @@ def _print_plan(args, capture, lighting: str) -> int:
 
 
 def probe_config(args, lighting: str):
-    """The settings of the accuracy probe (optimize/forecast.py): the default preset's with this
+    """The settings of the accuracy probe (planning/accuracy_forecast.py): the default preset's with this
     command line's options, whatever preset runs, so that one probe serves every preset."""
     return dataclasses.replace(_preset_configs(args, [DEFAULT])[DEFAULT], lighting=lighting)
 
@@ -240,13 +267,13 @@ def _preset_event(args, emit, config, capture):
     def announce(capture, viewset=None, settings=None, material_settings=None, initial=None, held=None):
         # expected_*: the figures of the calibration scene lit as this capture is (point lights or
         # an environment map; null where that kind is not calibrated); predicted_minutes: this
-        # capture's own, from its measured step costs (optimize/plan.py)
+        # capture's own, from its measured step costs (planning/time_plan.py)
         kind = lighting_kind(capture, config.lighting)
         entries = calibrated(kind=kind)
         expected = entries.get(preset, {})
         plan = None
         if settings is not None:
-            from .forecast import probe  # the planner runs once the variant is chosen
+            from .accuracy_forecast import probe  # the planner runs once the variant is chosen
 
             probing = probe_config(args, config.lighting)
             same = (probing.init, probing.initial_faces) == (config.init, config.initial_faces)
@@ -266,7 +293,10 @@ def _preset_event(args, emit, config, capture):
              plan=None if plan is None else {**plan.presets[preset].to_json(), "costs": plan.costs.to_json(),
                                              "render_settings": plan.settings},
              dominated_by=expected.get("dominated_by"), note=_preset_note(preset, expected, kind))
-        return None if plan is None else plan.presets[preset]  # the run's time left follows it (optimize/remaining.py)
+        if plan is None:
+            return None
+        chosen = plan.presets[preset]  # the run's time left follows it
+        return Remaining.from_plan(chosen, config.time_budget_s), chosen.level_limit
 
     if args.resume:
         announce(capture)

@@ -1,12 +1,5 @@
-"""``RUN/accuracy_time.png``: held-out PSNR against run time, with the run's levels and stages
-marked (``--track-accuracy``; backend.optimize.accuracy).
-
-Drawn with numpy and Pillow, which the backend already needs (matplotlib is not among the
-packages the add-on installs). Pale bands behind the curve show the stage each stretch of
-time belongs to (``STAGE_COLOURS``), dark vertical lines the start of every geometry level
-(L0, L1, ...) and polish round (P); the blue line is the held-out PSNR (left axis, dB), the
-orange ones the validation loss of each level (right axis, log scale). ``CAPTION`` says the same in words
-for report.json."""
+"""``RUN/accuracy_time.png``: held-out PSNR against run time, with the run's levels and
+stages marked (``--track-accuracy``; drawn by ``render``)."""
 
 from __future__ import annotations
 
@@ -82,8 +75,16 @@ def _range(values: list[float], pad: float) -> tuple[float, float]:
 
 
 def render(points: list[dict], marks: list[dict], title: str = "") -> Image.Image:
-    """The figure as an RGB image (see the module docstring); ``points`` carry ``seconds``,
-    ``psnr`` and ``validation_loss``, ``marks`` ``seconds``, ``stage`` and ``level``."""
+    """The figure as an RGB image; ``points`` carry ``seconds``,
+    ``psnr`` and ``validation_loss``, ``marks`` ``seconds``, ``stage`` and ``level``.
+
+    Drawn with numpy and Pillow, which the backend already needs (matplotlib is not among the
+    packages the add-on installs). Pale bands behind the curve show the stage each stretch of
+    time belongs to (``STAGE_COLOURS``), dark vertical lines the start of every geometry level
+    (L0, L1, ...) and polish round (P); the blue line is the held-out PSNR (left axis, dB), the
+    orange ones the validation loss of each level (right axis, log scale). ``CAPTION`` says the same in words
+    for report.json.
+    """
     image = Image.new("RGB", SIZE, (255, 255, 255))
     draw = ImageDraw.Draw(image)
     font = ImageFont.load_default()

@@ -1,34 +1,5 @@
-"""Predicted held-out accuracy of each preset on *this* capture, measured before optimising.
-
-How well a run will render views it never fitted depends on the capture more than on the
-preset: its textures, its noise, how far the visual hull is from the object. One calibration
-scene cannot know that (the dragon's held-out PSNR says nothing about a textured teacup), so
-the prediction starts from a measurement on the capture itself:
-
-    probe            = held-out PSNR of the run's initial mesh with its first material
-                       cycles fitted (the constant stage, then one diffuse cycle, at the
-                       coarse size, under the run's lighting: captured, or estimated / flash
-                       fitted with it as the run fits it)
-    predicted(preset) = probe + gain(preset)
-
-``probe`` measures what the capture's appearance allows on the starting shape; ``gain`` is
-what the preset's geometry levels, finer textures and specular stage add on top of that,
-calibrated as the median over captures that are not used to test the prediction
-(``GAINS_FILE``, with the largest distance from that median as the prediction's spread;
-``bench plan`` compares predicted and measured on others). The gain holds at the image sizes
-it was calibrated at: a probe scored at a finer size than every calibration capture's starts
-further below what the run's finer levels reach (the hull's error and a coarse texture show
-more), so such a prediction is marked ``finer`` (:func:`extrapolated`) and shown as a floor,
-"21+ dB", without a spread. Two refinements are recorded in
-the file and not used, because each did worse on held-out captures it had not seen
-(docs/results.md, "Predicted time"): a median per kind of lighting (an environment map, or
-lights fixed to the cameras), and a line in the probe's PSNR (``fit_line``).
-
-Held-out views are those ``--track-accuracy`` scores (``accuracy.split``: the capture's
-ground-truth held-out views, else every ``held_out_every``-th view, left out of the probe's
-fit), rendered as the tracker renders them, so that the prediction and the run's
-``accuracy_time`` measure the same thing. The probe runs on copies: the run's material,
-lighting and capture are not touched."""
+"""Each preset's held-out PSNR on *this* capture, before the run: a probe's held-out PSNR
+on the initial mesh plus the preset's calibrated gain (the model: ``probe``)."""
 
 from __future__ import annotations
 
@@ -40,6 +11,9 @@ from pathlib import Path
 
 import numpy as np
 
+from ..optimize.views import ViewSet
+from .presets import lighting_kind
+
 SPREAD_FLOOR_DB = 1.0  # a run's held-out PSNR moves by up to about this much run to run: no narrower promise
 PROBE_CYCLES = 8  # most material cycles the probe runs (the constant stage ends sooner: MaterialSchedule)
 GAINS_FILE = Path(__file__).resolve().parents[1] / "forecast.json"  # written by ``bench plan --calibrate``
@@ -48,17 +22,46 @@ GAINS_FILE = Path(__file__).resolve().parents[1] / "forecast.json"  # written by
 def probe(capture, config, held=None, mesh=None) -> dict | None:
     """The probe's held-out PSNR on ``capture``, or None when nothing can be held out or the
     material is not the staged one (the gains are calibrated with it). ``config``: the probe's
-    settings (``job.probe_config``); ``held``: the views (``accuracy.HeldOut``) a run already
+    settings (``job.probe_config``); ``held``: the views (``tracking.HeldOut``) a run already
     holds out of ``capture`` (``--track-accuracy``), else the probe holds out the same ones
     itself. The initial mesh is made as the run makes it, from the fitted views only (``mesh``:
     the run's own, when it was made so with the probe's settings). Returns
     {"psnr", "seconds", "views", "source", "cycles", "faces", "size" (the scored images' long
-    side, px), "lighting_kind"}."""
+    side, px), "lighting_kind"}.
+
+    How well a run will render views it never fitted depends on the capture more than on the
+    preset: its textures, its noise, how far the visual hull is from the object. One calibration
+    scene cannot know that (the dragon's held-out PSNR says nothing about a textured teacup), so
+    the prediction starts from a measurement on the capture itself:
+
+        probe            = held-out PSNR of the run's initial mesh with its first material
+                           cycles fitted (the constant stage, then one diffuse cycle, at the
+                           coarse size, under the run's lighting: captured, or estimated / flash
+                           fitted with it as the run fits it)
+        predicted(preset) = probe + gain(preset)
+
+    ``probe`` measures what the capture's appearance allows on the starting shape; ``gain`` is
+    what the preset's geometry levels, finer textures and specular stage add on top of that,
+    calibrated as the median over captures that are not used to test the prediction
+    (``GAINS_FILE``, with the largest distance from that median as the prediction's spread;
+    ``bench plan`` compares predicted and measured on others). The gain holds at the image sizes
+    it was calibrated at: a probe scored at a finer size than every calibration capture's starts
+    further below what the run's finer levels reach (the hull's error and a coarse texture show
+    more), so such a prediction is marked ``finer`` (:func:`extrapolated`) and shown as a floor,
+    "21+ dB", without a spread. Two refinements are recorded in
+    the file and not used, because each did worse on held-out captures it had not seen
+    (docs/results.md): a median per kind of lighting (an environment map, or
+    lights fixed to the cameras), and a line in the probe's PSNR (``fit_line``).
+
+    Held-out views are those ``--track-accuracy`` scores (``tracking.split``: the capture's
+    ground-truth held-out views, else every ``held_out_every``-th view, left out of the probe's
+    fit), rendered as the tracker renders them, so that the prediction and the run's
+    ``accuracy_time`` measure the same thing. The probe runs on copies: the run's material,
+    lighting and capture are not touched.
+    """
     from ..geometry.init import initial_mesh  # these need the Mitsuba variant chosen (the plan's caller does)
-    from . import accuracy
-    from .appearance import Appearance
-    from .presets import lighting_kind
-    from .views import ViewSet
+    from ..optimize.appearance import Appearance
+    from . import tracking
 
     if config.material != "staged":
         return None
@@ -66,7 +69,7 @@ def probe(capture, config, held=None, mesh=None) -> dict | None:
     config = dataclasses.replace(config, track_accuracy=True)
     if held is None or held.capture is None:
         mesh = None  # carved from every view: the probe's must not see the held-out ones
-        capture, held = accuracy.split(dataclasses.replace(capture), config)
+        capture, held = tracking.split(dataclasses.replace(capture), config)
         if held.capture is None:
             return None
     fit = dataclasses.replace(capture)  # the lighting fit sets its environment on this copy only
@@ -85,7 +88,7 @@ def probe(capture, config, held=None, mesh=None) -> dict | None:
         if appearance.driver.stage == "diffuse":
             appearance.material_cycle(mesh, material, views, level=0)
             cycles += 1
-        tracker = accuracy.AccuracyTracker(held, config)
+        tracker = tracking.AccuracyTracker(held, config)
         size = max((max(v.camera.width, v.camera.height) for v in tracker.views()), default=None)
         point = tracker.score(mesh, material, appearance.lighting, level=0, phase="probe", why="probe",
                               validation_loss=None, folder=Path(folder))
@@ -121,7 +124,7 @@ def fit_line(pairs: list[tuple[float, float]]) -> dict | None:
 def gain(gains: dict, preset: str) -> tuple[float, float | None] | None:
     """(gain, spread) in dB of ``preset``: the median gain, the spread at least
     ``SPREAD_FLOOR_DB``; None when the preset has no calibrated gain. The file's ``line`` and
-    ``kinds`` are records, not used (see the module docstring)."""
+    ``kinds`` are records, not used (see ``probe``)."""
     entry = gains.get(preset)
     if not entry:
         return None

@@ -1,32 +1,5 @@
-"""``Remaining``: a run's time left, re-estimated while it runs from the plan and its own pace.
-
-Before the first step the plan (optimize/plan.py) predicts every phase of the run: each
-level's geometry steps and its material cycle, the long material cycles on the converged
-geometry, the polish rounds. What it cannot know are the counts that end on convergence
-(steps per level, final cycles, polish steps) and how much a step costs once the material
-is spatially varying and the effects are re-decided. So while the run goes, each phase's
-measured pace replaces the plan's guess. With ``t`` now and the phases in order,
-
-    remaining(t) = left(current, t) + sum over later phases q of planned(q) * pace(kind of q) + END_S
-
-- ``left(current, t)``: the current phase's units still to go (geometry or polish steps,
-  material iterations) times the seconds per unit measured in it, less the time since its
-  last report. Units still to go are the plan's count less those done; past the plan's count,
-  half of what its cap still allows (a level that has not converged by its expected length
-  goes on for a while, and may run to its cap).
-- ``pace(kind)``: measured over planned seconds per unit in the latest finished phase of the
-  same kind (``step``: geometry levels and polish rounds; ``cycle``: material cycles), 1 before
-  there is one. The latest, not the mean: a step costs more at each level (finer images, more
-  faces, a varying material) by more than the plan's timing of the initial mesh shows.
-- The final cycles are the plan's mean count; once a run has gone past it, the cycle under
-  way is taken as the last. Each polish round adds its refinement cycle. Cycles before level
-  0 (the lighting fitted first) come before the plan and are not counted.
-
-With a time budget the remaining time is at most what the budget leaves (and the outputs).
-Events drive it (``observe``: ``stage`` and ``progress`` events as the run emits them, with
-the clock's time), so ``bench plan --replan`` replays finished runs through the same code
-(docs/results.md, "Predicted time").
-"""
+"""``Remaining``: a run's time left, re-estimated while it runs from the plan's phases and
+the pace each finished phase measured (the model: ``Remaining``)."""
 
 from __future__ import annotations
 
@@ -80,7 +53,35 @@ class _Current:
 
 @dataclass
 class Remaining:
-    """The live estimate; ``phases`` from ``PresetPlan.phases`` (empty: no estimate)."""
+    """The live estimate; ``phases`` from ``PresetPlan.phases`` (empty: no estimate).
+
+    Before the first step the plan (planning/time_plan.py) predicts every phase of the run: each
+    level's geometry steps and its material cycle, the long material cycles on the converged
+    geometry, the polish rounds. What it cannot know are the counts that end on convergence
+    (steps per level, final cycles, polish steps) and how much a step costs once the material
+    is spatially varying and the effects are re-decided. So while the run goes, each phase's
+    measured pace replaces the plan's guess. With ``t`` now and the phases in order,
+
+        remaining(t) = left(current, t) + sum over later phases q of planned(q) * pace(kind of q) + END_S
+
+    - ``left(current, t)``: the current phase's units still to go (geometry or polish steps,
+      material iterations) times the seconds per unit measured in it, less the time since its
+      last report. Units still to go are the plan's count less those done; past the plan's count,
+      half of what its cap still allows (a level that has not converged by its expected length
+      goes on for a while, and may run to its cap).
+    - ``pace(kind)``: measured over planned seconds per unit in the latest finished phase of the
+      same kind (``step``: geometry levels and polish rounds; ``cycle``: material cycles), 1 before
+      there is one. The latest, not the mean: a step costs more at each level (finer images, more
+      faces, a varying material) by more than the plan's timing of the initial mesh shows.
+    - The final cycles are the plan's mean count; once a run has gone past it, the cycle under
+      way is taken as the last. Each polish round adds its refinement cycle. Cycles before level
+      0 (the lighting fitted first) come before the plan and are not counted.
+
+    With a time budget the remaining time is at most what the budget leaves (and the outputs).
+    Events drive it (``observe``: ``stage`` and ``progress`` events as the run emits them, with
+    the clock's time), so ``bench plan --replan`` replays finished runs through the same code
+    (docs/results.md).
+    """
 
     phases: list[Phase] = field(default_factory=list)
     budget_s: float | None = None
@@ -223,32 +224,3 @@ def resumed(events_path, budget_s: float | None = None) -> Remaining | None:
         remaining.observe(str(e.get("event")), e, float(e.get("time") or 0.0))
     remaining.current, remaining.ended = None, False  # the phase it was in starts again
     return remaining
-
-
-class Paced:
-    """An emitter that first shows every event to the run's ``Remaining`` (``run.budget.remaining``,
-    once the plan has set it), on the run's clock. A ``progress`` event sent straight to the
-    emitter (a material stage's, the lighting's) goes through the run's ``Progress`` instead,
-    so that it carries the fraction and time left, and the heartbeat repeats its stage, not
-    the last level's."""
-
-    def __init__(self, inner, run):
-        self.inner, self.run = inner, run  # run: the Reconstruction, whose budget and progress come later
-
-    def __call__(self, event: str, **fields) -> dict:
-        progress = getattr(self.run, "progress", None)
-        if event == "progress" and "fraction" not in fields and progress is not None:
-            progress.restart(**fields)
-            return fields
-        budget = getattr(self.run, "budget", None)
-        if budget is not None and budget.remaining is not None:
-            try:
-                budget.remaining.observe(event, fields, budget.elapsed())
-            except Exception as err:  # an estimate that fails must not stop the run it estimates
-                budget.remaining = None
-                self.inner("warning", message=f"no estimate of the time left from here on ({type(err).__name__}: {err})")
-        return self.inner(event, **fields)
-
-    @property
-    def start(self) -> float:
-        return self.inner.start

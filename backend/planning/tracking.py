@@ -1,21 +1,5 @@
-"""Held-out accuracy against run time (``--track-accuracy``; docs/method.md).
-
-Which views are scored (``split``): a synthetic capture's own ground-truth held-out views
-(``ground_truth.held_out``, a separate capture folder) when it has them, and then every
-view of the capture is fitted as without tracking; otherwise every ``held_out_every``-th
-view of the capture (``check_views``: the same choice as the specular check's), and those
-views are left out of everything the run fits (initialisation, geometry, material,
-validation). Too few views to hold any out: not tracked, with a warning.
-
-``AccuracyTracker`` scores up to ``accuracy_views`` of them, at ``accuracy_size`` px and
-``accuracy_spp`` spp (x ``ENV_SPP_FACTOR`` under an environment map) with the current mesh
-and material under the run's fitted lighting
-(backend.lighting.fitted, as ``evaluate`` renders them: the views' own lights x the light
-factor, the estimated map, or the flash at each view's camera), every ``accuracy_every_s``
-seconds of run time and at every level's and stage's end: the mean PSNR on sRGB within the
-masks (backend.metrics.image). The run does not charge that time to its budget. Each score is an ``accuracy`` event and a point of ``report.json``
-``accuracy_time``; ``RUN/accuracy_time.png`` (accuracy_figure) is redrawn after each one.
-``next_level`` says what the level a time budget cut off was expected to buy."""
+"""Held-out accuracy against run time (``--track-accuracy``): which views are held out of
+the fit (``split``) and their PSNR scored while the run goes (``AccuracyTracker``)."""
 
 from __future__ import annotations
 
@@ -34,8 +18,8 @@ from ..lighting import fitted
 from ..material.stages import check_views
 from ..metrics.image import psnr
 from ..render.scene import RenderSettings, SceneRenderer
-from . import accuracy_figure
-from .views import ViewSet
+from ..optimize.views import ViewSet
+from . import tracking_figure
 
 FIGURE = "accuracy_time.png"
 # samples per pixel x this when an environment map lights the views: a map lights each point
@@ -55,7 +39,12 @@ class HeldOut:
 
 
 def split(capture: Capture, config) -> tuple[Capture, HeldOut]:
-    """(the capture the run fits, its held-out views) by the module docstring's rule."""
+    """(the capture the run fits, its held-out views): a synthetic capture's own ground-truth
+    held-out views (``ground_truth.held_out``, a separate capture folder) when it has them, and
+    then every view of the capture is fitted as without tracking; otherwise every
+    ``held_out_every``-th view (``check_views``: the same choice as the specular check's), left
+    out of everything the run fits (initialisation, geometry, material, validation). Too few
+    views to hold any out: none, with a ``note``."""
     n = len(capture.frames)
     if not config.track_accuracy:
         return capture, HeldOut(fitted=n)
@@ -99,7 +88,15 @@ class _Marking:
 
 @dataclass
 class AccuracyTracker:
-    """The held-out series of one run (see the module docstring)."""
+    """The held-out series of one run: it scores up to ``accuracy_views`` of them, at ``accuracy_size`` px and
+    ``accuracy_spp`` spp (x ``ENV_SPP_FACTOR`` under an environment map) with the current mesh
+    and material under the run's fitted lighting
+    (backend.lighting.fitted, as ``evaluate`` renders them: the views' own lights x the light
+    factor, the estimated map, or the flash at each view's camera), every ``accuracy_every_s``
+    seconds of run time and at every level's and stage's end: the mean PSNR on sRGB within the
+    masks (backend.metrics.image). The run does not charge that time to its budget. Each score
+    is an ``accuracy`` event and a point of ``report.json`` ``accuracy_time``; ``RUN/accuracy_time.png`` (tracking_figure) is redrawn after each one.
+    """
 
     held: HeldOut
     config: object
@@ -179,7 +176,7 @@ class AccuracyTracker:
                  "stage": self.marks[-1]["stage"] if self.marks else "init", "phase": phase, "why": why,
                  "views": len(views), "scoring_seconds": round(seconds, 3), "figure": FIGURE}
         self.points.append(point)
-        accuracy_figure.write(Path(folder) / FIGURE, self.points, self.marks, self.title())
+        tracking_figure.write(Path(folder) / FIGURE, self.points, self.marks, self.title())
         return point
 
     def title(self) -> str:
@@ -225,27 +222,11 @@ class AccuracyTracker:
                 "scored_views": [v.name for v in self.views()], "size": self.size, "spp": self.spp or c.accuracy_spp,
                 "every_s": c.accuracy_every_s, "scoring_seconds": round(self.scoring_seconds, 3),
                 "points": self.points, "marks": self.marks, "level_gains": self.level_gains(),
-                "figure": FIGURE, "caption": accuracy_figure.CAPTION}
+                "figure": FIGURE, "caption": tracking_figure.CAPTION}
 
 
-def next_level(levels: list, levels_ended: str | None, gains: list[dict], size: int) -> dict | None:
-    """What the level a time budget cut off was expected to buy: an extrapolation from the
-    last level run (its held-out PSNR gain when tracked, its validation-loss drop always).
-    None unless the time budget ended the levels."""
-    geometric = [lv for lv in levels if not lv.polish]
-    if levels_ended != "time budget" or not geometric:
-        return None
-    last = geometric[-1]
-    drop = (last.loss_start - last.loss) / last.loss_start if last.loss_start > 0 else None
-    gain = next((g for g in gains if g["level"] == last.level), None)
-    seconds = gain["seconds"] if gain is not None else last.seconds
-    out = {"level": last.level + 1, "size": size, "extrapolated": True,
-           "basis": f"level {last.level}, the last one run ({seconds:.0f} s with its stages)",
-           "validation_loss_drop": None if drop is None else round(drop, 4),
-           "psnr_gain_db": None if gain is None else gain["psnr_gain_db"]}
-    bought = (f"about {gain['psnr_gain_db']:+.2f} dB held-out PSNR" if gain is not None else
-              f"about {100 * drop:.1f} % lower validation loss" if drop is not None else "an unknown gain")
-    out["line"] = (f"the time budget ended the levels after level {last.level}: level {last.level + 1} "
-                   f"({size} px) was expected to buy {bought} (extrapolated: level {last.level}'s own gain, "
-                   f"in {seconds:.0f} s)")
-    return out
+def start(capture: Capture, config) -> tuple[Capture, AccuracyTracker]:
+    """(the capture the run fits, the tracker of its held-out views) by ``split``: what
+    ``optimize.run.reconstruct`` takes as ``tracking``."""
+    fitted, held = split(capture, config)
+    return fitted, AccuracyTracker(held, config)
