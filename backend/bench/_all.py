@@ -18,16 +18,15 @@ on a 2-core machine, and runs nothing."""
 
 from __future__ import annotations
 
-import os
-import subprocess
 import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
 
 from .. import fsio
+from . import _launch
 from ._data import SHARED_DATA
-from ._machine import REPO, code_version, machine
+from ._machine import code_version, machine
 
 ARMADILLO = "{data}/meshes/stanford/armadillo_86k.obj"
 FOREST = "{data}/envmaps/forest_slope_1k.hdr"
@@ -116,21 +115,14 @@ def run_job(job: Job, out: Path, report: Path) -> dict:
     """Run ``job``'s commands in order (stopping at the first that fails); its record."""
     folder = out / job.name
     folder.mkdir(parents=True, exist_ok=True)
-    env = dict(os.environ, PYTHONUNBUFFERED="1")
-    env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(REPO), env.get("PYTHONPATH")]))
     steps = []
     for i, command in enumerate(job.commands):
         argv, log = expand(command, folder, report), folder / f"{i}.log"
-        load, start, before = os.getloadavg()[0], time.perf_counter(), os.times()
-        with open(log, "w") as f:
-            rc = subprocess.run(argv, stdout=f, stderr=subprocess.STDOUT, cwd=REPO, env=env).returncode
-        after = os.times()
-        steps.append({"command": " ".join(["python", *argv[1:]]), "rc": rc, "log": str(log),
-                      "seconds": round(time.perf_counter() - start, 1),
-                      "cpu_seconds": round(after.children_user + after.children_system
-                                           - before.children_user - before.children_system, 1),
-                      "load_before": round(load, 2), "load_after": round(os.getloadavg()[0], 2)})
-        if rc != 0:
+        child = _launch.run(argv, log=log)
+        steps.append({"command": " ".join(["python", *argv[1:]]), "rc": child.rc, "log": str(log),
+                      "seconds": round(child.seconds, 1), "cpu_seconds": round(child.cpu_seconds, 1),
+                      "load_before": round(child.load_before, 2), "load_after": round(child.load_after, 2)})
+        if child.rc != 0:
             tail = (printed(log).splitlines() or ["(no output)"])[-1]
             steps[-1]["error"] = tail[-500:]
             break

@@ -24,11 +24,7 @@ from __future__ import annotations
 
 import json
 import os
-import resource
-import subprocess
-import sys
 import threading
-import time
 from dataclasses import asdict, fields
 from pathlib import Path
 
@@ -49,6 +45,7 @@ from ..metrics.image import albedo_rmse, image_metrics
 from ..optimize.run_folder import RunFolder
 from ..render.fields import VertexField
 from ..synth.capture import SynthSpec, synthesize
+from . import _launch
 from ._data import SHARED_DATA
 
 REPO = Path(__file__).resolve().parents[2]
@@ -134,21 +131,16 @@ class LoadSampler:
 
 def reconstruct(capture_dir: Path, run: Path, minutes: float, args) -> dict:
     """Run ``reconstruct`` in a child process (same niceness as this one); returns the timing."""
-    cmd = [sys.executable, "-m", "backend", "reconstruct", str(capture_dir), "--out", str(run), "--overwrite",
-           "--init", "carve", "--max-size", str(args.resolution), "--material", "staged",
-           "--effects", args.effects, "--time-budget", str(minutes), *args.reconstruct_args.split()]
-    env = dict(os.environ, PYTHONUNBUFFERED="1")
-    env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(REPO), env.get("PYTHONPATH")]))
-    before = resource.getrusage(resource.RUSAGE_CHILDREN)
-    start = time.perf_counter()
+    cmd = _launch.backend("reconstruct", capture_dir, "--out", run, "--overwrite", "--init", "carve",
+                          "--max-size", args.resolution, "--material", "staged", "--effects", args.effects,
+                          "--time-budget", minutes, *args.reconstruct_args.split())
     run.mkdir(parents=True, exist_ok=True)
-    with LoadSampler() as load, open(run.parent / "reconstruct.log", "w") as log:
-        proc = subprocess.run(cmd, stdout=log, stderr=subprocess.STDOUT, env=env)
-    after = resource.getrusage(resource.RUSAGE_CHILDREN)
-    if proc.returncode != 0:
-        raise RuntimeError(f"reconstruct failed ({proc.returncode}); see {run.parent / 'reconstruct.log'}")
-    timing = {"command": cmd[1:], "budget_minutes": minutes, "wall_s": round(time.perf_counter() - start, 1),
-              "cpu_s": round((after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime), 1),
+    with LoadSampler() as load:
+        child = _launch.run(cmd, log=run.parent / "reconstruct.log")
+    if child.rc != 0:
+        raise RuntimeError(f"reconstruct failed ({child.rc}); see {run.parent / 'reconstruct.log'}")
+    timing = {"command": cmd[1:], "budget_minutes": minutes, "wall_s": round(child.seconds, 1),
+              "cpu_s": round(child.cpu_seconds, 1),
               "load_average_1min": load.summary(), "niceness": os.nice(0), "cores": os.cpu_count()}
     (run / "bench_timing.json").write_text(json.dumps(timing, indent=2))
     return timing

@@ -27,8 +27,6 @@ from __future__ import annotations
 
 import json
 import math
-import os
-import subprocess
 import sys
 import time
 from dataclasses import dataclass
@@ -45,9 +43,9 @@ from ..lighting import fitted
 from ..lighting.setup import MAP_FRAME
 from ..metrics.image import psnr
 from ..optimize.views import ViewSet
+from . import _launch
 from ._data import SHARED_DATA
 
-ROOT = Path(__file__).resolve().parents[2]
 
 
 @dataclass(frozen=True)
@@ -81,12 +79,7 @@ def add_arguments(parser) -> None:
 
 def _backend(*args) -> None:
     """``python -m backend ARGS`` as a child process; raises with its last error line."""
-    env = dict(os.environ, PYTHONUNBUFFERED="1")
-    env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(ROOT), env.get("PYTHONPATH")]))
-    proc = subprocess.run([sys.executable, "-m", "backend", *map(str, args)], capture_output=True, text=True, env=env)
-    if proc.returncode != 0:
-        tail = (proc.stderr.strip().splitlines() or ["(no message)"])[-1]
-        raise RuntimeError(f"{args[0]} failed ({proc.returncode}): {tail[-1500:]}")
+    _launch.run(_launch.backend(*args), what=str(args[0]))
 
 
 def _srgb8(linear: np.ndarray) -> np.ndarray:

@@ -17,9 +17,6 @@ Captures are cached in ``--out``; runs are repeated. Timings depend on the machi
 from __future__ import annotations
 
 import json
-import os
-import subprocess
-import sys
 import time
 from pathlib import Path
 
@@ -28,6 +25,7 @@ from ..errors import InputError
 from ..geometry.mesh import load_mesh, save_mesh
 from ..geometry.topology import genus
 from ..synth.capture import Y_UP_TO_Z_UP
+from . import _launch
 from ._data import SHARED_DATA
 from ._scenes import divot_capture, divot_depth, torus
 
@@ -48,14 +46,9 @@ def add_arguments(parser):
     parser.add_argument("--data", type=Path, default=DRAGON, help="folder with dragon.obj and colmap_dragon.obj")
 
 
-def _backend(*args, timeout: float | None = None) -> subprocess.CompletedProcess:
-    env = dict(os.environ, PYTHONUNBUFFERED="1")
-    env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(Path(__file__).resolve().parents[2]), env.get("PYTHONPATH")]))
-    proc = subprocess.run([sys.executable, "-m", "backend", *map(str, args)], capture_output=True, text=True,
-                          env=env, timeout=timeout)
-    if proc.returncode != 0:
-        raise RuntimeError(f"backend {args[0]} failed ({proc.returncode}): {proc.stderr.strip()[-1500:]}")
-    return proc
+def _backend(*args) -> _launch.Child:
+    """``python -m backend ARGS``; raises with the child's last error line."""
+    return _launch.run(_launch.backend(*args), what=f"backend {args[0]}")
 
 
 def _report(run: Path) -> dict:
@@ -188,11 +181,7 @@ print(json.dumps({"faces": mesh.n_faces, "peak_rss_gb": resource.getrusage(resou
 
 def run_memory(args) -> dict:
     capture = dragon_capture(args.out, args.data)
-    env = dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parents[2]))
-    proc = subprocess.run([sys.executable, "-c", MEMORY_PROBE, str(capture), "10"], capture_output=True, text=True,
-                          env=env)
-    if proc.returncode != 0:
-        raise RuntimeError(proc.stderr[-2000:])
+    proc = _launch.run(_launch.python("-c", MEMORY_PROBE, capture, 10), what="memory probe")
     out = json.loads(proc.stdout.strip().splitlines()[-1])
     out["goal"] = out["peak_rss_gb"] < 8.0
     print(f"  memory: {out['faces']} faces at 128 px, 2 views per step: peak resident {out['peak_rss_gb']:.2f} GB "

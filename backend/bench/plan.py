@@ -33,8 +33,6 @@ from __future__ import annotations
 
 import json
 import statistics
-import subprocess
-import sys
 import time
 from pathlib import Path
 
@@ -42,6 +40,7 @@ from .. import fsio
 from ..errors import InputError, require
 from ..events import Emitter
 from ..optimize.forecast import GAINS_FILE, fit_line
+from . import _launch
 from ._data import SHARED_DATA
 from ._machine import code_version, machine
 from ._replan import CHECKPOINTS, said_errors
@@ -117,9 +116,8 @@ def synthesise(name: str, out: Path, log: Path) -> Path:
         if isinstance(arg, Path):
             require(arg.is_file(), arg, "benchmark data not found", "fetch the shared data or set SFT_SHARED_DATA")
     log.parent.mkdir(parents=True, exist_ok=True)
-    cmd = [sys.executable, "-m", "backend", "synth", "--out", str(folder), "--overwrite", *map(str, spec)]
-    with open(log, "w") as err:
-        rc = subprocess.run(cmd, stdout=subprocess.DEVNULL, stderr=err, cwd=REPO).returncode
+    rc = _launch.run(_launch.backend("synth", "--out", folder, "--overwrite", *spec), log=log, events=False,
+                     cwd=REPO).rc
     require(rc == 0, log, f"synth of {name} failed", "see the log")
     return folder
 

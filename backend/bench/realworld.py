@@ -28,8 +28,6 @@ from __future__ import annotations
 import json
 import math
 import os
-import subprocess
-import sys
 import time
 from pathlib import Path
 
@@ -39,6 +37,7 @@ from scipy.spatial.transform import Rotation
 from ..errors import InputError
 from ..geometry.mesh import load_mesh
 from ..metrics.geometry import align_by_icp, align_similarity, apply, geometry_metrics
+from . import _launch
 from ._data import SHARED_DATA as SHARED
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -64,19 +63,9 @@ def add_arguments(parser):
                         help="further reconstruct options, quoted (e.g. '--iterations 5 --max-size 48')")
 
 
-def _env() -> dict:
-    env = dict(os.environ, PYTHONUNBUFFERED="1")
-    env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(ROOT), env.get("PYTHONPATH")]))
-    return env
-
-
-def run_child(args: list, what: str) -> subprocess.CompletedProcess:
+def run_child(args: list, what: str) -> _launch.Child:
     """``python ARGS`` with the repository on the path; raises with the child's last error line."""
-    proc = subprocess.run([sys.executable, *map(str, args)], capture_output=True, text=True, env=_env())
-    if proc.returncode != 0:
-        tail = proc.stderr.strip().splitlines()[-1:] or ["(no message)"]
-        raise RuntimeError(f"{what} failed ({proc.returncode}): {tail[0][-1500:]}")
-    return proc
+    return _launch.run(_launch.python(*args), what=what)
 
 
 def _render_settings(args) -> dict:

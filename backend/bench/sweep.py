@@ -23,10 +23,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import os
 import statistics
-import subprocess
-import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -42,7 +39,7 @@ from ..geometry.mesh import Mesh, load_mesh
 from ..metrics.image import image_metrics
 from ..optimize.config import ReconstructConfig
 from ..optimize.presets import PRESETS
-from . import _all, _report
+from . import _all, _launch, _report
 from ._machine import REPO, code_version, machine, machine_line  # noqa: F401  (bench/effects imports them from here)
 from ._ray import require_ray, run_tasks
 from ._sweep_scenes import SCENES, ensure
@@ -125,27 +122,13 @@ GRIDS = {
 # -- measuring one run ------------------------------------------------------------------------------
 def reconstruct_child(capture: Path, run: Path, setting: Setting, log: Path, seed: int = 0,
                       variant: str | None = None) -> dict:
-    """Run ``python -m backend reconstruct`` for ``setting``; wall and CPU seconds, peak memory,
-    load average before and after, exit code."""
-    cmd = [sys.executable, "-m", "backend", "reconstruct", str(capture), "--out", str(run), "--overwrite",
-           "--seed", str(seed), *setting.args()] + (["--variant", variant] if variant else [])
-    env = dict(os.environ, PYTHONPATH=str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", ""),
-               PYTHONUNBUFFERED="1")
-    log.parent.mkdir(parents=True, exist_ok=True)
-    load_before = os.getloadavg()[0]
-    start = time.perf_counter()
-    with open(log, "w") as err:
-        proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=err, env=env, cwd=REPO)
-        try:
-            _, status, usage = os.wait4(proc.pid, 0)
-        except BaseException:
-            proc.kill()
-            proc.wait()
-            raise
-        proc.returncode = os.waitstatus_to_exitcode(status)
-    return {"seconds": time.perf_counter() - start, "cpu_seconds": usage.ru_utime + usage.ru_stime,
-            "peak_mb": usage.ru_maxrss / 1024.0, "load_before": load_before, "load_after": os.getloadavg()[0],
-            "rc": proc.returncode}
+    """Run ``python -m backend reconstruct`` for ``setting`` (its stderr to ``log``); wall and CPU
+    seconds, peak memory, load average before and after, exit code."""
+    argv = _launch.backend("reconstruct", capture, "--out", run, "--overwrite", "--seed", seed, *setting.args(),
+                           *(["--variant", variant] if variant else []))
+    child = _launch.run(argv, log=log, events=False)
+    return {"seconds": child.seconds, "cpu_seconds": child.cpu_seconds, "peak_mb": child.peak_mb,
+            "load_before": child.load_before, "load_after": child.load_after, "rc": child.rc}
 
 
 # -- novel-view and relit scores ----------------------------------------------------------------
