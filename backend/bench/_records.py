@@ -50,15 +50,41 @@ def columns(rows: list[dict]) -> list[str]:
     return list(dict.fromkeys(k for r in rows for k in r))
 
 
+def record_name(name: str, variant: str | None) -> str:
+    """The record's file name: ``name``, or ``name-cuda`` for a run on a CUDA variant."""
+    return f"{name}-cuda" if variant and variant.startswith("cuda") else name
+
+
 def write_record(name: str, *, title: str, context: str, rows: list[dict] | None = None,
                  scalars: dict | None = None, plots: list[str] | None = None, command: str | None = None,
-                 variant: str | None = None, into: Path | None = None, **extra) -> Path:
+                 variant: str | None = None, merge_on: str | None = None, into: Path | None = None,
+                 **extra) -> Path:
     """Write the record of benchmark ``name`` (replacing its last one); returns its path.
 
-    ``rows`` become ``figures.rows`` (values: numbers, strings or None), ``scalars``
-    ``figures.scalars``; ``plots`` are paths (made relative to the repository where they lie
-    inside it); ``command`` defaults to this process's command line; ``extra`` keys are kept."""
+    Parameters:
+        rows: ``figures.rows``, one dict per table row (values: numbers, strings or None).
+        scalars: ``figures.scalars``.
+        plots: image paths, made relative to the repository where they lie inside it.
+        command: the reproducing command (default: this process's command line).
+        variant: the Mitsuba variant that ran (a CUDA one writes ``NAME-cuda.json``).
+        merge_on: a column: the last record's rows whose value there differs from every new
+            row's are kept (one benchmark invoked once per scene builds one table; their
+            commands are kept in ``commands``).
+        extra: further keys of the record.
+    """
+    name = record_name(name, variant)
+    path = Path(into or folder()) / f"{name}.json"
     rows = [dict(r) for r in rows or []]
+    command = command or command_line()
+    commands = [command]
+    if merge_on is not None and path.is_file():
+        try:
+            last = read(path)
+        except ValueError:
+            last = {}
+        new = {r.get(merge_on) for r in rows}
+        rows = [r for r in last.get("figures", {}).get("rows", []) if r.get(merge_on) not in new] + rows
+        commands = [c for c in last.get("commands", [last.get("command")]) if c and c != command] + commands
     rel = []
     for p in plots or []:
         p = Path(p)
@@ -66,11 +92,10 @@ def write_record(name: str, *, title: str, context: str, rows: list[dict] | None
             rel.append(str(p.resolve().relative_to(REPO)))
         except ValueError:
             rel.append(str(p))
-    record = {"benchmark": name, "title": title, "context": context, "command": command or command_line(),
+    record = {"benchmark": name, "title": title, "context": context, "command": command,
               "commit": code_version(), "machine": machine(variant), "date": time.strftime("%Y-%m-%d"),
               "figures": {"columns": columns(rows), "rows": rows, "scalars": dict(scalars or {})},
-              "plots": rel, **extra}
-    path = Path(into or folder()) / f"{name}.json"
+              "plots": rel, **({"commands": commands} if merge_on is not None else {}), **extra}
     fsio.write_json(path, _plain(record))
     return path
 

@@ -40,7 +40,7 @@ from .. import fsio
 from ..errors import InputError, require
 from ..events import Emitter
 from ..optimize.forecast import GAINS_FILE, fit_line
-from . import _launch
+from . import _launch, _records
 from ._data import SHARED_DATA
 from ._machine import code_version, machine
 from ._replan import CHECKPOINTS, said_errors
@@ -251,8 +251,52 @@ def run(args) -> int:
     print(table(rows), flush=True)
     if args.calibrate:
         write_gain(args.gains_file, args.preset, rows, doc)
+    write_record(rows, args.preset, args.calibrate, args.variant)
     emit("done", result=str(args.out / "plan.json"), **doc["summary"])
     return 0 if all(r["rc"] == 0 for r in rows) else 1
+
+
+def write_record(rows: list[dict], preset: str, calibrate: bool, variant: str | None) -> None:
+    """The runs as a benchmark record: ``forecast`` (the training captures' gains, per preset) with
+    ``--calibrate``, else ``plan`` (the held-out captures' promises against their runs)."""
+    def pct(v):
+        return None if v is None else round(100 * v)
+
+    if calibrate:
+        name = _records.record_name("forecast", variant)
+        path = _records.folder() / f"{name}.json"
+        try:
+            earlier = _records.read(path)["figures"]["rows"] if path.is_file() else []
+        except (ValueError, KeyError):
+            earlier = []
+        by_capture = {r["capture"]: dict(r) for r in earlier}
+        label = preset.capitalize()
+        for r in rows:
+            if r.get("rc") != 0:
+                continue
+            row = by_capture.setdefault(r["capture"], {"capture": r["capture"]})
+            row.update({"lighting": r.get("lighting_kind"), "probe dB": r.get("probe_psnr"),
+                        f"{label} dB": r.get("psnr"), f"{label} gain dB": r.get("gain_db")})
+        gains = {k: _median_spread([r[k] for r in by_capture.values() if r.get(k) is not None])[0]
+                 for k in dict.fromkeys(k for r in by_capture.values() for k in r if k.endswith("gain dB"))}
+        _records.write_record(
+            "forecast", title="Held-out PSNR gain per preset", variant=variant,
+            context="training captures' held-out PSNR at a run's end against its probe; medians into "
+                    "backend/forecast.json",
+            rows=list(by_capture.values()), scalars={f"median {k}": v for k, v in gains.items()})
+        return
+    s = summary(rows)
+    _records.write_record(
+        "plan", title="Predicted time and held-out PSNR", variant=variant, merge_on="capture",
+        context=f"{preset.capitalize()} on captures no constant of the cost model was fitted to: the run's promise "
+                f"(its preset event) against its wall clock and last held-out PSNR",
+        show=["capture", "predicted min", "measured min", "time error %", "held-out dB", "predicted − measured dB",
+              "F1@0.01"],
+        rows=[{"capture": r["capture"], "lighting": r.get("lighting_kind"), "predicted min": r.get("predicted_minutes"),
+               "measured min": r.get("measured_minutes"), "time error %": pct(r.get("time_error")),
+               "probe dB": r.get("probe_psnr"), "held-out dB": r.get("psnr"), "predicted − measured dB": r.get("psnr_error"),
+               "F1@0.01": None if r.get("f1") is None else round(100 * r["f1"], 1)} for r in rows],
+        scalars={"runs": s["runs"], "within ±30 % in time": s["time_within"], "within 2 dB": s["psnr_within"]})
 
 
 def write_gain(path: Path, preset: str, rows: list[dict], doc: dict) -> None:

@@ -39,7 +39,7 @@ from ..geometry.mesh import Mesh, load_mesh
 from ..metrics.image import image_metrics
 from ..optimize.config import ReconstructConfig
 from ..optimize.presets import PRESETS
-from . import _all, _launch, _report
+from . import _all, _launch, _records, _report
 from ._machine import REPO, code_version, machine, machine_line  # noqa: F401  (bench/effects imports them from here)
 from ._ray import require_ray, run_tasks
 from ._sweep_scenes import SCENES, ensure
@@ -344,8 +344,25 @@ def run(args) -> int:
             record(i + 1, scene, setting, row)
     rows = load_results(results)
     written = _report.write(rows, args.report, SCENES, history=load_history(results))
+    good = _report.ok_rows(rows)
+    _records.write_record(
+        "sweep", title="Accuracy versus time: the sweep", variant=next((r["machine"].get("variant") for r in good
+                                                                        if r.get("machine")), None),
+        context=f"the benchmark scenes over the '{args.grid}' grid around Draft, one constant material, "
+                "wall and CPU seconds of the whole reconstruct process; the full report is bench/report.md",
+        rows=[{"scene": r["scene"], "setting": r["name"].replace("draft:", "draft, ").replace("=", " "),
+               "wall s": round(r["seconds"]), "CPU s": round(r.get("cpu_seconds") or 0), "F1@0.01": round(r["f1"], 1),
+               "Chamfer-L1": round(r["chamfer_l1"], 4), "held-out dB": _round(r.get("novel_psnr"), 1),
+               "relit dB": _round(r.get("relit_psnr"), 1)}
+              for r in sorted(good, key=lambda r: (list(SCENES).index(r["scene"]) if r["scene"] in SCENES else 99,
+                                                   r["seconds"]))],
+        plots=sorted({str(Path(args.report) / f"pareto_{r['scene']}.png") for r in good}))
     emit("done", report=str(written), results=str(results), runs=len(rows))
     return 0
+
+
+def _round(value, digits: int):
+    return None if value is None else round(value, digits)
 
 
 def _run_all(args, emit) -> int:
