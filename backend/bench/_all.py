@@ -1,16 +1,17 @@
-"""``bench sweep --all``: every measurement behind docs/results.md and bench/, in one command.
+"""``bench sweep --all``: every measurement behind bench/records (and so docs/results.md), in one command.
 
-``JOBS`` lists, per section of docs/results.md, the command lines that produce its figures
-(``python -m backend ...``, or ``python -c`` for a mesh a section builds), with ``{out}`` the
+``JOBS`` lists, per benchmark record, the command lines that produce its figures
+(``python -m backend ...``, or ``python -c`` for a mesh a job builds), with ``{out}`` the
 job's folder under ``--out``, ``{data}`` the shared data and ``{report}`` the sweep's report
 folder (bench/). :func:`run_all` runs them one after the other as child processes (a
 benchmark's timings are only worth something alone on the machine), each command's output to
-``OUT/<job>/<i>.log``, and writes:
+``OUT/<job>/<i>.log``. A ``bench`` command writes its own record; a job of ``reconstruct`` and
+``evaluate`` commands names its runs in ``scored``, and its record is written from their
+``evaluation.json`` once the job has passed. It also writes:
 
-- ``OUT/all.json``: per job its section, commands, return codes, wall and CPU seconds, the
+- ``OUT/all.json``: per job its record, commands, return codes, wall and CPU seconds, the
   load before and after, the code and the machine;
-- ``OUT/all.md``: per section, the commands and what each printed apart from its JSON events
-  (the benchmarks' tables), to carry into docs/results.md.
+- ``OUT/all.md``: per record, the commands and what each printed apart from its JSON events.
 
 A job whose command fails is recorded with its log's last line, and the next job runs.
 ``--only`` picks jobs by name; ``--list`` prints them with the hours each is expected to take

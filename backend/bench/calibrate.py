@@ -48,8 +48,8 @@ REPO = Path(__file__).resolve().parents[2]
 SCENE = "dragon"
 # the calibration scene of each kind of lighting (optimize/presets.py: lighting_kind); the
 # dragon's figures are also the file's top-level ones, for readers older than kinds
-# (the textured blob under a map was tried for the second: Draft already reached F1@0.01
-# 98.7 there, so every costlier preset was dominated; docs/notes/2026-11-29-hdr-calibration.md)
+# (not the textured blob under a map: Draft saturates F1@0.01 there, so every costlier preset
+# is dominated; docs/notes/2026-11-29-hdr-calibration.md)
 KINDS = {"point": "dragon", "environment": "armadillo_env"}
 # the material each scene is fitted with: both truths are one glossy material
 MATERIALS = {"dragon": "constant", "armadillo_env": "constant"}

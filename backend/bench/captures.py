@@ -10,7 +10,8 @@ sphere start), the commands a user runs, as child processes:
    has no map, so the lighting is estimated (an environment map fitted with the material, its
    scale fixed by the convention's mean albedo, RUN/environment.exr): ``L`` is ``rig`` for DTU,
    whose studio lamps travel with the camera (its frames are fitted closer under a map fixed to
-   the camera than under one fixed to the world: docs/results.md), ``estimate`` for the others;
+   the camera than under one fixed to the world: docs/notes/2026-11-28-dtu-fit-ceiling.md),
+   ``estimate`` for the others;
    ``--reconstruct-args`` with a ``--lighting`` of its own wins; ``--track-accuracy`` leaves every
    K-th frame out of everything the run fits (K per capture below: 8 where the capture has
    16 frames or more, fewer on the short ones so that two frames are held out);

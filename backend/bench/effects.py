@@ -7,7 +7,7 @@ the output is a table of every scene (wall-clock and CPU-time ratios, accuracy o
 the targets and whether each is met; ``OUT/results.json`` holds the same, written after
 every run, so ``--reuse`` picks up finished runs (also from an earlier invocation).
 
-Targets (issue #9): the convex object under an HDR map at least 2x faster; the colour-
+Targets: the convex object under an HDR map at least 2x faster; the colour-
 bleeding corner keeps multi-bounce light and its albedo RMSE matches the all-effects run;
 no scene loses more than 1 F1 point or 0.5 dB held-out PSNR."""
 
@@ -84,7 +84,7 @@ def describe(decision: dict | None) -> str:
 
 
 def verdict(scene: str, reference: dict, selected: dict) -> list[dict]:
-    """The issue's targets for ``scene``: each {"target", "value", "ok"} (the selection
+    """The targets for ``scene``: each {"target", "value", "ok"} (the selection
     against the all-effects run)."""
     checks = []
     speedup = reference["seconds"] / max(selected["seconds"], 1e-9)

@@ -7,7 +7,7 @@ compared per camera: centre distance as a share of the ring radius (the mean dis
 given centres from their centroid) and rotation angle. The dino's poses are its calibration;
 the fox's are the COLMAP poses its ``transforms.json`` ships with.
 
-Goal (issue #6): rotation error < 2 degrees and centre error < 2 % of the ring radius."""
+Goal: rotation error < 2 degrees and centre error < 2 % of the ring radius."""
 
 from __future__ import annotations
 

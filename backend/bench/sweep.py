@@ -293,8 +293,8 @@ def add_arguments(parser) -> None:
     parser.add_argument("--cpus-per-run", type=float, default=2,
                         help="with --ray: CPUs each run declares (Ray's num_cpus; default: %(default)s)")
     parser.add_argument("--all", action="store_true",
-                        help="run every measurement behind docs/results.md and bench/ into --out (bench/_all.py): "
-                             "OUT/all.md holds each section's commands and tables")
+                        help="run every benchmark behind bench/records (and docs/results.md) into --out "
+                             "(bench/_all.py): OUT/all.md holds each job's commands and tables")
     parser.add_argument("--only", help="with --all: only these jobs (comma-separated; --list names them)")
     parser.add_argument("--list", action="store_true", help="with --all: print the jobs and their hours, run nothing")
 
