@@ -4,7 +4,9 @@ records them and gathers what they printed."""
 from __future__ import annotations
 
 import json
+import os
 import re
+from pathlib import Path
 
 from backend.bench import _all
 from tests.helpers import REPO, run_cli
@@ -36,6 +38,22 @@ def test_list_prints_the_jobs_and_runs_nothing(tmp_path):
     assert lines[-1].startswith("total") and not (tmp_path / "all").exists()
     bad = run_cli("bench", "sweep", "--all", "--only", "nope", "--out", tmp_path / "all", timeout=120)
     assert bad.returncode == 2 and "unknown job nope" in bad.stderr and "Traceback" not in bad.stderr
+
+
+def test_a_job_of_reconstruct_and_evaluate_writes_its_record_from_the_evaluation(tmp_path):
+    job = _all.Job("tiny-scored", "tiny-scored", 0.01, (
+        ("synth", "--out", "{out}/capture", "--views", "6", "--resolution", "24", "--spp", "8", "--held-out", "2"),
+        *_all._run_and_score("{out}/capture", "{out}/run", "--init", "sphere", "--iterations", "6", "--max-size", "24",
+                             "--coarse-size", "24", "--initial-faces", "500", "--spp", "4", "--effects", "specular",
+                             "--material", "known:0.6,0.6,0.6:0.25:0.35")),
+        scored=(("tiny", "{out}/run"),), title="Tiny", context="a tiny capture")
+    record, = _all.run_all([job], tmp_path, tmp_path / "report", lambda *a, **k: None)
+    assert record["rc"] == 0, record["steps"][-1].get("error")
+    written = json.loads((Path(os.environ["SFT_RECORDS"]) / "tiny-scored.json").read_text())
+    row, = written["figures"]["rows"]
+    assert row["run"] == "tiny" and row["faces"] > 0 and 0 < row["F1@0.01"] <= 100 and row["held-out dB"] > 5
+    assert written["command"] == "python -m backend bench sweep --all --only tiny-scored --out OUT"
+    assert len(written["commands"]) == 3 and written["commands"][2].startswith("python -m backend evaluate OUT/")
 
 
 def test_the_runner_records_each_command_and_stops_a_job_at_its_first_failure(tmp_path):

@@ -72,9 +72,9 @@ def run(args) -> int:
         "stability", title="Numerical stability", variant=variant.choose(args.variant),
         context="hard cases through the real pipeline (extreme materials and views, degenerate meshes, NaN gradients, "
                 "a killed run, a full disk), each checked for finite values and valid meshes",
-        rows=[{"case": r["name"], "passed": "yes" if r["passed"] else "no", "seconds": r.get("seconds")}
+        rows=[{"case": r["case"], "passed": "yes" if r["passed"] else "no", "seconds": r.get("seconds")}
               for r in records], scalars={"passed": passed, "cases": len(records)},
-        failed=[r["name"] for r in records if not r["passed"]], display="scalars" if passed == len(records) else None)
+        failed=[r["case"] for r in records if not r["passed"]], display="scalars" if passed == len(records) else None)
     print(f"\n{passed}/{len(records)} passed" + ("" if args.quick else "; peak GB per case, each in its own process")
           + (" (peak GB: this process so far)" if args.quick else ""))
     return 0 if passed == len(records) else 1
