@@ -308,9 +308,9 @@ def run(args, spec) -> int:
     _log("\n" + format_table(results))
     _records.write_record(
         "table1", title="Table 1: shape and material", variant=variant.choose(args.variant),
-        context="32 views x 2 point lights at 128 px, textured albedo and a glossy lobe; reconstruct from carving "
-                f"with the staged material in {args.minutes:g} min (dragon) or {args.other_minutes:g} min (the others); "
-                "PSNR dB / SSIM of 4 held-out views and their diffuse and specular passes",
+        context="32 views x 2 point lights at 128 px, a textured glossy truth; reconstruct from carving, staged "
+                f"material, {args.minutes:g} min (dragon) or {args.other_minutes:g}; PSNR dB / SSIM of 4 held-out views "
+                "and their diffuse and specular passes",
         rows=record_rows(results))
     _log(f"results: {table}")
     return 0
