@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import pytest
@@ -10,6 +11,13 @@ import bpy  # noqa: F401  (bpy must load before pymeshlab: both ship an Embree 4
 
 import backend  # noqa: F401  (points Dr.Jit at libLLVM >= 17 before any test imports drjit)
 from tests.helpers import run_cli
+
+
+@pytest.fixture(scope="session", autouse=True)
+def _records_elsewhere(tmp_path_factory):
+    """Benchmarks run by the tests write their records into a temporary folder (SFT_RECORDS,
+    inherited by child processes), never into the checkout's bench/records."""
+    os.environ["SFT_RECORDS"] = str(tmp_path_factory.mktemp("records"))
 
 
 @pytest.fixture(scope="session")

@@ -41,14 +41,15 @@ from ..events import Emitter
 from ..planning.presets import CALIBRATION_FILE, PRESETS
 from ._machine import code_version, machine, machine_line
 from ._sweep_scenes import SCENES, ensure
+from . import _records
 from .sweep import GRIDS, append_result, load_results, measure
 
 REPO = Path(__file__).resolve().parents[2]
 SCENE = "dragon"
 # the calibration scene of each kind of lighting (planning/presets.py: lighting_kind); the
 # dragon's figures are also the file's top-level ones, for readers older than kinds
-# (the textured blob under a map was tried for the second: Draft already reached F1@0.01
-# 98.7 there, so every costlier preset was dominated; docs/notes/2026-11-29-hdr-calibration.md)
+# (not the textured blob under a map: Draft saturates F1@0.01 there, so every costlier preset
+# is dominated; docs/notes/2026-11-29-hdr-calibration.md)
 KINDS = {"point": "dragon", "environment": "armadillo_env"}
 # the material each scene is fitted with: both truths are one glossy material
 MATERIALS = {"dragon": "constant", "armadillo_env": "constant"}
@@ -229,6 +230,10 @@ def add_arguments(parser) -> None:
     parser.add_argument("--variant", help="Mitsuba variant (default: automatic)")
 
 
+def _round(value, digits: int):
+    return None if value is None else round(value, digits)
+
+
 def run(args) -> int:
     emit = Emitter()
     names = [n.strip() for n in args.presets.split(",") if n.strip()]
@@ -268,6 +273,16 @@ def run(args) -> int:
     require(any(d["presets"] for d in doc["kinds"].values()), None, "no preset run finished",
             f"see the logs under {args.work / 'logs'}")
     fsio.write_json(args.out, doc)
+    _records.write_record(
+        "calibrate", title="Presets calibrated", variant=info.get("variant"),
+        context="the Draft / Balanced / Final presets on the point-lit dragon and the HDR-lit armadillo, one constant "
+                "glossy material; written to backend/presets.json, which every run reads",
+        rows=[{"scene": r["scene"], "preset": r["name"].capitalize(), "wall min": _round(r["seconds"] / 60, 2),
+               "CPU min": _round(r.get("cpu_seconds", 0) / 60, 1), "F1@0.01": _round(r.get("f1"), 2),
+               "F1@0.005": _round(r.get("f1_005"), 1), "Chamfer-L1": _round(r.get("chamfer_l1"), 5),
+               "held-out dB": _round(r.get("novel_psnr"), 2), "relit dB": _round(r.get("relit_psnr"), 2),
+               "levels, steps, faces": f"{r.get('levels')}, {r.get('iterations')}, {r.get('faces')}"}
+              for r in rows if r.get("rc") == 0 and r["name"] in TARGETS])
     emit("done", calibration=str(args.out),
          kinds={kind: {n: {k: p[k] for k in ("expected_minutes", "expected_f1")} for n, p in d["presets"].items()}
                 for kind, d in doc["kinds"].items()},
