@@ -90,8 +90,7 @@ def preset_for_budget(minutes: float, path: Path = CALIBRATION_FILE, default: st
         return min(entries, key=lambda n: entries[n]["expected_minutes"])
     best = max(fits, key=lambda n: (entries[n].get("expected_f1") or 0.0, -entries[n]["expected_minutes"]))
     # a budget the best fit would mostly leave unused is better spent on the next preset, cut
-    # at the budget (measured on both calibration scenes: docs/results.md, "What the budget
-    # picker left on the table")
+    # at the budget (measured on both calibration scenes: docs/results.md, "Presets calibrated")
     costlier = [n for n, p in entries.items() if p["expected_minutes"] > entries[best]["expected_minutes"]]
     if costlier and minutes >= FILL_FACTOR * entries[best]["expected_minutes"]:
         return min(costlier, key=lambda n: entries[n]["expected_minutes"])
