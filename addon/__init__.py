@@ -1,9 +1,16 @@
 """Shape from Tracing add-on: a thin Blender layer over the backend process.
 
-The bpy-free modules (``interpreter``, ``process``, ``progress``, ``ply``, ``envmap``,
-``capture_file``, ``frames``, ``presets``) hold the logic and import without Blender; the
-rest registers operators, panels, properties and preferences. Mitsuba is never imported:
-the backend runs as ``<python> -m backend`` in its own interpreter (docs/protocol.md)."""
+Two layers, as Blender's glTF add-on keeps ``io/`` apart from ``blender/``:
+
+- ``io/``: the bpy-free logic (backend interpreter and process, event stream and run state,
+  capture, frame and PLY files, the preset file); it imports without Blender.
+- the rest is the Blender layer: the modules beside ``io/`` (scene objects, world, images,
+  jobs, preferences, properties), ``operators/`` and ``ui/``. They stay at this level, not
+  in a ``blender/`` folder, because ``operators/`` and ``ui/`` are Blender code too: "all but
+  ``io/`` needs bpy" is one rule.
+
+Mitsuba is never imported: the backend runs as ``<python> -m backend`` in its own
+interpreter (docs/protocol.md)."""
 
 ROOT_PACKAGE = __package__.rpartition(".")[0] or __package__  # the extension's module name
 

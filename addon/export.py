@@ -2,8 +2,9 @@
 
 When the object still shows a finished run's final snapshot unchanged, the export is the
 run's own ``result.glb``: the optimised mesh (the display mesh is that mesh split for its
-mesh colors, r² times the faces at resolution r) with textures evaluated exactly from the material (albedo,
-roughness and specular), written again with the object's name and world transform.
+mesh colors, r² times the faces at resolution r) with textures evaluated exactly from the
+material (albedo, roughness and specular), written again with the object's name and world
+transform.
 
 Otherwise (the object was edited, or the run stopped before its end) a temporary copy of
 the object gets a triangle-atlas UV map (two triangles per square cell, kept apart by a
@@ -20,9 +21,9 @@ from pathlib import Path
 import bpy
 import numpy as np
 
-from .errors import AddonInputError, require
-from .files import write_atomic
-from .ply import read_display_mesh
+from .io.errors import AddonInputError, require
+from .io.files import write_atomic
+from .io.ply import read_display_mesh
 from .preview import cycles_device
 from .scene_mesh import COLOR_ATTRIBUTE, SOURCE_PROPERTY, reconstruction_material, shows
 

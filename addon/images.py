@@ -5,7 +5,7 @@ from pathlib import Path
 import bpy
 import numpy as np
 
-from .errors import AddonInputError
+from .io.errors import AddonInputError
 
 
 def read_rgba(path: str | Path) -> tuple[np.ndarray, bool]:

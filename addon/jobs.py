@@ -12,11 +12,12 @@ from pathlib import Path
 
 import bpy
 
-from . import accuracy, interpreter, scene_mesh
-from .errors import AddonInputError
-from .ply import read_display_mesh
-from .process import BackendProcess
-from .progress import RunState
+from . import accuracy_curve, scene_mesh
+from .io import interpreter
+from .io.errors import AddonInputError
+from .io.ply import read_display_mesh
+from .io.process import BackendProcess
+from .io.progress import RunState
 
 ACTIVE: dict[str, "Job"] = {}  # kind ("reconstruct", "solve") -> the job the panel shows
 
@@ -77,18 +78,18 @@ class ReconstructJob(Job):
         self.applied_stamp: int | None = None  # its file's mtime: material stages rewrite one name
         self.apply_seconds: list[float] = []  # main-thread cost of each update
         super().__init__(python, args, run_dir, "reconstruct", root)
-        accuracy.clear()  # the curve shown is this run's
+        accuracy_curve.clear()  # the curve shown is this run's
 
     def on_events(self, context, events):
         if any(e.get("event") == "snapshot" for e in events):
             self.apply_latest(context)
         if any(e.get("event") == "accuracy" for e in events):
-            accuracy.show(self.run_dir)  # the backend redrew RUN/accuracy_time.png before the event
+            accuracy_curve.show(self.run_dir)  # the backend redrew RUN/accuracy_time.png before the event
 
     def on_finish(self, context):
         self.apply_latest(context)
         if self.state.accuracy:
-            accuracy.show(self.run_dir)
+            accuracy_curve.show(self.run_dir)
 
     def apply_latest(self, context) -> bool:
         """Show the newest snapshot if it is not shown yet; True when the scene changed."""

@@ -5,7 +5,8 @@ from pathlib import Path
 import bpy
 from bpy.props import StringProperty
 
-from . import ROOT_PACKAGE, interpreter, jobs
+from . import ROOT_PACKAGE, jobs
+from .io import interpreter
 
 VENV_FOLDER = "backend-python"
 

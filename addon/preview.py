@@ -11,8 +11,8 @@ import bpy
 import numpy as np
 
 from . import world
-from .capture_file import CaptureInfo
-from .files import png_bytes, write_atomic
+from .io.capture_file import CaptureInfo
+from .io.files import png_bytes, write_atomic
 from .images import read_rgba, to_display
 from .scene_cameras import camera_object, configure_render
 

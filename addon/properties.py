@@ -3,7 +3,7 @@
 import bpy
 from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, PointerProperty, StringProperty
 
-from .presets import PRESETS
+from .io.preset_file import PRESETS
 
 QUALITY = (("auto", "Fit Budget", "The most accurate preset whose calibrated time fits the time budget, or the "
             "next one, cut at the budget, when the budget is three times that preset's time (Balanced when the "

@@ -4,7 +4,7 @@ import bpy
 import numpy as np
 from mathutils import Matrix
 
-from .capture_file import BlenderCamera, CaptureInfo
+from .io.capture_file import BlenderCamera, CaptureInfo
 
 COLLECTION = "SfT Cameras"
 

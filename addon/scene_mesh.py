@@ -3,13 +3,14 @@
 Colours are a point-domain colour attribute ``albedo`` (linear); ``specular`` and
 ``roughness`` are float point attributes; shading normals, when the snapshot has them, are
 Blender's point-domain ``custom_normal`` attribute (free normals). The material reads the
-attributes as the backend's BSDF: albedo / pi plus specular * D G / (4 cos cos) with GGX alpha = roughness^2, which is a
-Diffuse BSDF added to a Glossy BSDF (GGX, no Fresnel) in Cycles."""
+attributes as the backend's BSDF: albedo / pi plus specular * D G / (4 cos cos) with GGX
+alpha = roughness^2, which is a Diffuse BSDF added to a Glossy BSDF (GGX, no Fresnel) in
+Cycles."""
 
 import bpy
 import numpy as np
 
-from .ply import DisplayMesh
+from .io.ply import DisplayMesh
 
 OBJECT_NAME = "Reconstruction"
 SOURCE_PROPERTY = "sft_snapshot"  # the snapshot file an object shows (for Export glTF)
@@ -143,7 +144,7 @@ def shows(mesh: bpy.types.Mesh, dm: DisplayMesh) -> bool:
 def export_object_mesh(context, obj, path) -> int:
     """Write ``obj``'s evaluated mesh (modifiers applied, world coordinates, triangulated) as
     PLY for the backend's ``--init``; returns its face count."""
-    from .ply import write_triangle_ply
+    from .io.ply import write_triangle_ply
 
     evaluated = obj.evaluated_get(context.evaluated_depsgraph_get())
     mesh = evaluated.to_mesh()

@@ -5,7 +5,7 @@ from pathlib import Path
 
 import bpy
 
-from .errors import AddonInputError, require
+from .io.errors import AddonInputError, require
 
 VIDEO_SUFFIXES = {".mp4", ".mov", ".m4v", ".avi", ".mkv", ".webm", ".mts", ".mpg", ".mpeg", ".ogv"}
 

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import bpy
 
-from .errors import AddonInputError, require
+from .io.errors import AddonInputError, require
 
 ENV_SUFFIXES = {".exr", ".hdr"}
 

@@ -13,10 +13,9 @@ from __future__ import annotations
 
 import argparse
 import importlib
-import signal
 import sys
 
-from . import __version__, variant
+from . import __version__, interrupt, variant
 from .errors import EXIT_BAD_INPUT, InputError
 
 COMMANDS = {
@@ -62,13 +61,9 @@ def build_parser(argv: list[str]) -> argparse.ArgumentParser:
     return parser
 
 
-def _terminate(signum, frame):
-    raise KeyboardInterrupt
-
-
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
-    signal.signal(signal.SIGTERM, _terminate)
+    interrupt.install()
     try:
         if needs_variant(argv):
             variant.choose(variant.requested(argv))  # silent: the command announces it in its events
@@ -86,6 +81,11 @@ def main(argv: list[str] | None = None) -> int:
     except InputError as err:
         print(f"error: {err.line()}", file=sys.stderr)
         return EXIT_BAD_INPUT
+    except Exception as err:
+        if not interrupt.is_cancel(err):  # a library's wrapping of the interrupt is still a cancel
+            raise
+        print("cancelled", file=sys.stderr)
+        return 130
     except KeyboardInterrupt:
         print("cancelled", file=sys.stderr)
         return 130

@@ -5,6 +5,7 @@ for a command: modules that render import Mitsuba's variant types at their tops.
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import pytest
@@ -15,6 +16,13 @@ from backend import variant  # points Dr.Jit at libLLVM >= 17 before any test im
 from tests.helpers import run_cli
 
 variant.choose()
+
+
+@pytest.fixture(scope="session", autouse=True)
+def _records_elsewhere(tmp_path_factory):
+    """Benchmarks run by the tests write their records into a temporary folder (SFT_RECORDS,
+    inherited by child processes), never into the checkout's bench/records."""
+    os.environ["SFT_RECORDS"] = str(tmp_path_factory.mktemp("records"))
 
 
 @pytest.fixture(scope="session")

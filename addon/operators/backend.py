@@ -6,8 +6,9 @@ import sys
 
 import bpy
 
-from .. import ROOT_PACKAGE, interpreter, jobs
-from ..errors import AddonInputError, require
+from .. import ROOT_PACKAGE, jobs
+from ..io import interpreter
+from ..io.errors import AddonInputError, require
 from ..preferences import backend_python, installed_venv
 from .common import idle
 from .modal import CancelJob, JobModal

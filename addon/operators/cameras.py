@@ -5,9 +5,10 @@ import bpy
 from bpy.props import BoolProperty, StringProperty
 from bpy_extras.io_utils import ImportHelper
 
-from .. import capture_file, interpreter, jobs, progress, world
-from .. import frames as fr
-from ..errors import AddonInputError, require
+from .. import jobs, world
+from ..io import capture_file, interpreter, progress
+from ..io import frames as fr
+from ..io.errors import AddonInputError, require
 from ..preferences import backend_python
 from .common import abspath, capture_dir, fail, has_backend, idle
 from .modal import CancelJob, JobModal

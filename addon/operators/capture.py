@@ -10,10 +10,10 @@ import numpy as np
 from bpy.props import BoolProperty, FloatProperty, IntProperty, StringProperty
 from bpy_extras.io_utils import ImportHelper
 
-from .. import frames as fr
 from .. import world
-from ..errors import AddonInputError, require
-from ..files import png_bytes, replace_dir, write_atomic
+from ..io import frames as fr
+from ..io.errors import AddonInputError, require
+from ..io.files import png_bytes, replace_dir, write_atomic
 from ..images import luminance, read_rgba
 from ..video import VIDEO_SUFFIXES, render_frames, video_info
 from .common import Busy, abspath, capture_dir, fail, idle

@@ -4,7 +4,7 @@ from pathlib import Path
 
 import bpy
 
-from ..errors import require
+from ..io.errors import require
 
 
 def abspath(path: str) -> Path:

@@ -5,7 +5,7 @@ from bpy.props import BoolProperty, IntProperty, StringProperty
 from bpy_extras.io_utils import ExportHelper
 
 from .. import export, scene_mesh
-from ..errors import AddonInputError, require
+from ..io.errors import AddonInputError, require
 from .common import Busy, abspath, fail, poll_reconstruction
 
 

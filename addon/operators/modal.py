@@ -7,7 +7,7 @@ fire) drives the same :meth:`jobs.Job.step` in a loop until the process ends."""
 import bpy
 
 from .. import jobs
-from ..errors import AddonInputError
+from ..io.errors import AddonInputError
 from .common import fail
 
 TIMER_SECONDS = 0.2

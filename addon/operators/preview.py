@@ -3,8 +3,9 @@
 import bpy
 from bpy.props import StringProperty
 
-from .. import capture_file, preview, scene_mesh, world
-from ..errors import AddonInputError, require
+from .. import preview, scene_mesh, world
+from ..io import capture_file
+from ..io.errors import AddonInputError, require
 from .common import Busy, abspath, capture_dir, fail, poll_reconstruction
 
 

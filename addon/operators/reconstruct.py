@@ -10,8 +10,9 @@ from pathlib import Path
 import bpy
 from bpy.props import StringProperty
 
-from .. import interpreter, jobs, progress, scene_mesh, world
-from ..errors import AddonInputError, require
+from .. import jobs, scene_mesh, world
+from ..io import interpreter, progress
+from ..io.errors import AddonInputError, require
 from ..preferences import backend_python
 from .common import abspath, capture_dir, has_backend, idle
 from .modal import CancelJob, JobModal

@@ -2,12 +2,12 @@
 
 import bpy
 
-from .. import accuracy
+from .. import accuracy_curve
 from . import panels
 
 
 def register():
-    accuracy.register()
+    accuracy_curve.register()
     for cls in panels.CLASSES:
         bpy.utils.register_class(cls)
 
@@ -15,4 +15,4 @@ def register():
 def unregister():
     for cls in reversed(panels.CLASSES):
         bpy.utils.unregister_class(cls)
-    accuracy.unregister()
+    accuracy_curve.unregister()

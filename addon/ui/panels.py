@@ -4,7 +4,8 @@ from pathlib import Path
 
 import bpy
 
-from .. import accuracy, frames, jobs, presets, progress, scene_cameras, scene_mesh
+from .. import accuracy_curve, jobs, scene_cameras, scene_mesh
+from ..io import frames, preset_file, progress
 from ..operators import reconstruct
 
 CATEGORY = "Shape from Tracing"
@@ -50,8 +51,8 @@ def _draw_accuracy(layout, job: jobs.Job | None) -> None:
     if job is None or not job.state.accuracy:
         return
     box = layout.box().column(align=True)
-    if accuracy.shown():
-        box.template_icon(icon_value=accuracy.icon_id(), scale=9.0)
+    if accuracy_curve.shown():
+        box.template_icon(icon_value=accuracy_curve.icon_id(), scale=9.0)
     box.label(text=job.state.accuracy_text(), icon="GRAPH")
     if job.state.next_level_text():
         box.label(text=job.state.next_level_text(), icon="TIME")
@@ -107,11 +108,11 @@ class SFT_PT_reconstruct(_Panel, bpy.types.Panel):
         col = layout.column()
         col.enabled = not running
         col.prop(sft, "preset")
-        calibration, measured_on = presets.kind_calibration(presets.calibration(),
-                                                            presets.kind_for(sft.lighting, sft.env_path))
+        calibration, measured_on = preset_file.kind_calibration(preset_file.calibration(),
+                                                                preset_file.kind_for(sft.lighting, sft.env_path))
         box = col.box().column(align=True)
-        for key, label, _ in presets.PRESETS:
-            box.label(text=f"{label}: {presets.describe(key, calibration)}",
+        for key, label, _ in preset_file.PRESETS:
+            box.label(text=f"{label}: {preset_file.describe(key, calibration)}",
                       icon="RADIOBUT_ON" if key == sft.preset else "RADIOBUT_OFF")
         box.label(text=measured_on, icon="INFO")
         plan = jobs.ACTIVE.get("plan")

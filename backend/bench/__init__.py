@@ -4,7 +4,11 @@ Each benchmark is a module ``backend/bench/<name>.py`` whose docstring's first l
 describes it and which defines ``add_arguments(parser)`` and ``run(args) -> int``. Modules
 are found by name, so a new benchmark is a new file; names starting with ``_`` are helpers.
 Listing the benchmarks reads their docstrings from the source without importing them, so a
-benchmark's module (and what it imports: Mitsuba, renderers) loads only when it is chosen."""
+benchmark's module (and what it imports: Mitsuba, renderers) loads only when it is chosen.
+
+A benchmark starts its child processes through ``_launch`` and ends by writing its figures as
+a record, ``bench/records/<name>.json`` (``_records``); ``bench results`` turns the records
+into docs/results.md and the README's figures."""
 
 from __future__ import annotations
 

@@ -1,5 +1,5 @@
 """``bench plan --replan``: the time and held-out PSNR a finished ``bench plan`` run would have
-been promised by the current cost model (optimize/plan.py) and gains (optimize/forecast.py),
+been promised by the current cost model (planning/time_plan.py) and gains (planning/accuracy_forecast.py),
 from the step costs and the probe it recorded.
 
 A run's plan is a function of its measured step costs (the ``preset`` event's ``plan.costs``),
@@ -7,7 +7,7 @@ its settings, its capture's views and the calibration's levels, so a change to t
 (the finishing stages' counts, what a step costs) can be checked on runs already made,
 without timing them again. The probe's seconds are added as a run adds them. Likewise the
 predicted PSNR is the recorded probe plus the current gain, and the time left during the run
-(optimize/remaining.py) is its events replayed through the current code."""
+(planning/remaining.py) is its events replayed through the current code."""
 
 from __future__ import annotations
 
@@ -25,9 +25,9 @@ def replan(run: Path, capture: Path) -> tuple[float, dict, dict]:
     errors of its time left at the CHECKPOINTS, replayed (``live_errors``) and as its progress
     events recorded them; the Mitsuba variant must be chosen (``replan_rows`` does)."""
     from ..capture.load import load_capture
-    from ..optimize import plan
+    from ..planning import time_plan as plan
     from ..optimize.config import ReconstructConfig
-    from ..optimize.presets import calibrated
+    from ..planning.presets import calibrated
     from ..optimize.views import ViewSet
 
     events = load_history(run / "events.jsonl")
@@ -52,8 +52,8 @@ def checkpoints(events: list[dict]) -> tuple[float, float, list[tuple[str, float
 
 def live_errors(events: list[dict], predicted, budget_s: float | None = None) -> dict:
     """At each of the CHECKPOINTS: the end the time left points to, over the real end, less 1,
-    replayed through optimize/remaining.py with the phases of ``predicted`` (a PresetPlan)."""
-    from ..optimize.remaining import Remaining
+    replayed through planning/remaining.py with the phases of ``predicted`` (a PresetPlan)."""
+    from ..planning.remaining import Remaining
 
     start, end, points = checkpoints(events)
     out = {}
@@ -87,7 +87,7 @@ def replan_rows(out: Path, rows: list[dict]) -> list[dict]:
     gains; the recorded promises kept as ``recorded_minutes``, ``recorded_eta_error`` and
     ``recorded_psnr``."""
     from .. import variant
-    from ..optimize.forecast import predicted_psnr
+    from ..planning.accuracy_forecast import predicted_psnr
 
     variant.choose()
     fresh = []

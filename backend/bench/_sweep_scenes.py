@@ -32,6 +32,7 @@ from ..render.fields import VertexField
 from ..render.scene import RenderSettings, SceneRenderer
 from ..synth import layout, procedural
 from ..synth.capture import SynthSpec, synthesize
+from . import _launch
 from ._data import SHARED_DATA as SHARED
 
 DRAGON = SHARED / "meshes" / "shapefromtracing" / "dragon.obj"  # Y up (standing along +Y)
@@ -195,8 +196,8 @@ def build_video(out: Path, emit, frames: int = 40, size: str = "640x360", sample
     emit("progress", stage="synth:video:render", iteration=0, iterations=2)
     orbit = realworld.render(args)
     emit("progress", stage="synth:video:capture-from-video", iteration=1, iterations=2)
-    realworld.run_child(["-m", "backend", "capture-from-video", orbit / "orbit.mp4", "--masks", orbit / "masks",
-                         "--env", args.env, "--out", out, "--frames", frames, "--overwrite"], "capture-from-video")
+    _launch.run(_launch.backend("capture-from-video", orbit / "orbit.mp4", "--masks", orbit / "masks", "--env", args.env,
+                                "--out", out, "--frames", frames, "--overwrite"), what="capture-from-video")
     truth = json.loads((orbit / "truth.json").read_text())
     capture = load_capture(out)
     ours = np.array([f.camera.camera_to_world[:3, 3] for f in capture.frames])

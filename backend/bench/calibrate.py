@@ -13,20 +13,20 @@ as ``reconstruct --preset NAME`` would, and writes the calibration file (default
 The top level is the dragon's (point lights); ``kinds`` holds every kind's, ``environment``
 from the armadillo under an HDR map, which shades itself (the HDR-lit case where more levels
 pay), which a capture lit by an environment map is promised and its time budget read against
-(optimize/presets.py, ``calibrated``). A kind that ``--scenes`` leaves out keeps its entries
+(planning/presets.py, ``calibrated``). A kind that ``--scenes`` leaves out keeps its entries
 from the file being replaced, and so does a preset that ``--presets`` leaves out. Each scene is
 fitted with the material model its truth calls for (``MATERIALS``: one constant glossy
 material for both). ``expected_f1`` is F1@0.01 as a fraction (0.9 = 90 %).
 ``--from-results FILE`` writes the file from a sweep's ``results.jsonl`` instead of running
 anything; then each preset also gets
-``recommended_overrides`` (ReconstructConfig fields, as in ``optimize/presets.py``): the
+``recommended_overrides`` (ReconstructConfig fields, as in ``planning/presets.py``): the
 settings of the most accurate swept run that fits the preset's time target, when it beats the
 preset by more than ``--margin`` F1 points. Each entry records the preset's ``overrides`` as
 they were measured and ``code`` the commit; the ``done`` event lists presets another one
 dominates (as fast or faster and as accurate or more), and the file marks each with
 ``dominated_by``: the point-lit kind must have none; in another kind a marked preset buys
 nothing there, so a time budget never picks it and the panel says so.
-``backend.optimize.presets.preset_for_budget`` picks a preset for a time budget from the file."""
+``backend.planning.presets.preset_for_budget`` picks a preset for a time budget from the file."""
 
 from __future__ import annotations
 
@@ -38,17 +38,18 @@ from pathlib import Path
 from .. import fsio, variant
 from ..errors import InputError, require
 from ..events import Emitter
-from ..optimize.presets import CALIBRATION_FILE, PRESETS
+from ..planning.presets import CALIBRATION_FILE, PRESETS
 from ._machine import code_version, machine, machine_line
 from ._sweep_scenes import SCENES, ensure
+from . import _records
 from .sweep import GRIDS, append_result, load_results, measure
 
 REPO = Path(__file__).resolve().parents[2]
 SCENE = "dragon"
-# the calibration scene of each kind of lighting (optimize/presets.py: lighting_kind); the
+# the calibration scene of each kind of lighting (planning/presets.py: lighting_kind); the
 # dragon's figures are also the file's top-level ones, for readers older than kinds
-# (the textured blob under a map was tried for the second: Draft already reached F1@0.01
-# 98.7 there, so every costlier preset was dominated; docs/notes/2026-11-29-hdr-calibration.md)
+# (not the textured blob under a map: Draft saturates F1@0.01 there, so every costlier preset
+# is dominated; docs/notes/2026-11-29-hdr-calibration.md)
 KINDS = {"point": "dragon", "environment": "armadillo_env"}
 # the material each scene is fitted with: both truths are one glossy material
 MATERIALS = {"dragon": "constant", "armadillo_env": "constant"}
@@ -64,7 +65,7 @@ def entry(row: dict) -> dict:
            "novel_psnr": row.get("novel_psnr"), "relit_psnr": row.get("relit_psnr"),
            "peak_memory_mb": row.get("peak_mb"), "load_average": [row.get("load_before"), row.get("load_after")],
            "runs": row.get("repeats", 1), "settings": row["knobs"], "code": row.get("code"),
-           # the run's levels and steps: optimize/plan.py predicts other captures' times from them
+           # the run's levels and steps: planning/time_plan.py predicts other captures' times from them
            "iterations": row.get("iterations"), "levels": row.get("levels")}
     return out
 
@@ -77,7 +78,7 @@ def _target(name: str, row: dict) -> dict | None:
 
 
 def overrides(preset_knobs: dict, knobs: dict) -> dict:
-    """The ReconstructConfig fields (as in optimize/presets.py) that turn a preset's
+    """The ReconstructConfig fields (as in planning/presets.py) that turn a preset's
     knobs into ``knobs``."""
     out = {}
     for k, v in knobs.items():
@@ -197,7 +198,7 @@ def scene_calibration(rows: list[dict], machine: dict, scene: str, margin: float
             continue
         presets[name] = entry(row)
         # the preset as it was when its run was measured (None: not recorded): a test compares
-        # it with optimize/presets.py
+        # it with planning/presets.py
         presets[name]["overrides"] = row.get("overrides")
         target = _target(name, row) if scene == SCENE else None  # the targets are the dragon's
         if target:
@@ -227,6 +228,10 @@ def add_arguments(parser) -> None:
                              "the work folder's earlier rows, else the --out file's entries, stand in for the others")
     parser.add_argument("--repeats", type=int, default=1, help="runs per preset (the median time and figures are kept)")
     parser.add_argument("--variant", help="Mitsuba variant (default: automatic)")
+
+
+def _round(value, digits: int):
+    return None if value is None else round(value, digits)
 
 
 def run(args) -> int:
@@ -268,6 +273,16 @@ def run(args) -> int:
     require(any(d["presets"] for d in doc["kinds"].values()), None, "no preset run finished",
             f"see the logs under {args.work / 'logs'}")
     fsio.write_json(args.out, doc)
+    _records.write_record(
+        "calibrate", title="Presets calibrated", variant=info.get("variant"),
+        context="the Draft / Balanced / Final presets on the point-lit dragon and the HDR-lit armadillo, one constant "
+                "glossy material; written to backend/presets.json, which every run reads",
+        rows=[{"scene": r["scene"], "preset": r["name"].capitalize(), "wall min": _round(r["seconds"] / 60, 2),
+               "CPU min": _round(r.get("cpu_seconds", 0) / 60, 1), "F1@0.01": _round(r.get("f1"), 2),
+               "F1@0.005": _round(r.get("f1_005"), 1), "Chamfer-L1": _round(r.get("chamfer_l1"), 5),
+               "held-out dB": _round(r.get("novel_psnr"), 2), "relit dB": _round(r.get("relit_psnr"), 2),
+               "levels, steps, faces": f"{r.get('levels')}, {r.get('iterations')}, {r.get('faces')}"}
+              for r in rows if r.get("rc") == 0 and r["name"] in TARGETS])
     emit("done", calibration=str(args.out),
          kinds={kind: {n: {k: p[k] for k in ("expected_minutes", "expected_f1")} for n, p in d["presets"].items()}
                 for kind, d in doc["kinds"].items()},

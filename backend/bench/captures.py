@@ -10,7 +10,8 @@ sphere start), the commands a user runs, as child processes:
    has no map, so the lighting is estimated (an environment map fitted with the material, its
    scale fixed by the convention's mean albedo, RUN/environment.exr): ``L`` is ``rig`` for DTU,
    whose studio lamps travel with the camera (its frames are fitted closer under a map fixed to
-   the camera than under one fixed to the world: docs/results.md), ``estimate`` for the others;
+   the camera than under one fixed to the world: docs/notes/2026-11-28-dtu-fit-ceiling.md),
+   ``estimate`` for the others;
    ``--reconstruct-args`` with a ``--lighting`` of its own wins; ``--track-accuracy`` leaves every
    K-th frame out of everything the run fits (K per capture below: 8 where the capture has
    16 frames or more, fewer on the short ones so that two frames are held out);
@@ -27,8 +28,6 @@ from __future__ import annotations
 
 import json
 import math
-import os
-import subprocess
 import sys
 import time
 from dataclasses import dataclass
@@ -42,14 +41,14 @@ from ..capture.images import linear_to_srgb, read_linear_rgb
 from ..capture.load import load_capture
 from ..geometry.mesh import load_mesh
 from ..lighting import fitted
-from ..lighting.setup import MAP_FRAME
+from ..lighting.modes import MAP_FRAME
 from ..metrics.image import psnr
 from ..optimize.views import ViewSet
 from ..render.scene import RenderSettings, SceneRenderer
 from ..render.views import display_field
+from . import _launch, _records
 from ._data import SHARED_DATA
 
-ROOT = Path(__file__).resolve().parents[2]
 
 
 @dataclass(frozen=True)
@@ -83,12 +82,7 @@ def add_arguments(parser) -> None:
 
 def _backend(*args) -> None:
     """``python -m backend ARGS`` as a child process; raises with its last error line."""
-    env = dict(os.environ, PYTHONUNBUFFERED="1")
-    env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(ROOT), env.get("PYTHONPATH")]))
-    proc = subprocess.run([sys.executable, "-m", "backend", *map(str, args)], capture_output=True, text=True, env=env)
-    if proc.returncode != 0:
-        tail = (proc.stderr.strip().splitlines() or ["(no message)"])[-1]
-        raise RuntimeError(f"{args[0]} failed ({proc.returncode}): {tail[-1500:]}")
+    _launch.run(_launch.backend(*args), what=str(args[0]))
 
 
 def _srgb8(linear: np.ndarray) -> np.ndarray:
@@ -213,6 +207,16 @@ def run(args) -> int:
             results.append({"capture": name, "error": str(err)})
             print(f"[{name}] {err}", flush=True)
     (args.out / "captures.json").write_text(json.dumps(results, indent=1))
+    _records.write_record(
+        "captures", title="Real captures", merge_on="capture",
+        context=f"photographs imported at {args.import_size} px and reconstructed in {args.minutes:g} min at "
+                f"{args.max_size} px with the lighting estimated; PSNR on sRGB within the masks",
+        rows=[{"capture": r["capture"], "frames": r["frames"], "held out": len(r["held_out_frames"]),
+               "lighting": r["lighting"], "faces": r["faces"], "held-out dB": round(r["held_out_psnr"], 2)
+               if r["held_out_psnr"] is not None else None,
+               "fitted-view dB": round(r["fitted_psnr"], 2) if r["fitted_psnr"] is not None else None,
+               "reconstruct min": r["minutes"]["reconstruct"]} for r in results if "error" not in r],
+        plots=[r["sheet"] for r in results if "error" not in r])
     print(f"\n{'capture':8} {'frames':>6} {'held out':>9} {'held-out PSNR':>14} {'fitted PSNR':>12} "
           f"{'tracked':>8} {'lighting':>9} {'faces':>6} {'minutes':>8}")
     for r in results:

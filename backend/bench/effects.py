@@ -7,7 +7,7 @@ the output is a table of every scene (wall-clock and CPU-time ratios, accuracy o
 the targets and whether each is met; ``OUT/results.json`` holds the same, written after
 every run, so ``--reuse`` picks up finished runs (also from an earlier invocation).
 
-Targets (issue #9): the convex object under an HDR map at least 2x faster; the colour-
+Targets: the convex object under an HDR map at least 2x faster; the colour-
 bleeding corner keeps multi-bounce light and its albedo RMSE matches the all-effects run;
 no scene loses more than 1 F1 point or 0.5 dB held-out PSNR."""
 
@@ -18,6 +18,7 @@ import os
 from dataclasses import dataclass
 from pathlib import Path
 
+from . import _records
 from .sweep import REPO, Setting, code_version, machine, machine_line, reconstruct_child
 
 SCENES = ("blob_env", "dragon_cornell", "corner")
@@ -83,7 +84,7 @@ def describe(decision: dict | None) -> str:
 
 
 def verdict(scene: str, reference: dict, selected: dict) -> list[dict]:
-    """The issue's targets for ``scene``: each {"target", "value", "ok"} (the selection
+    """The targets for ``scene``: each {"target", "value", "ok"} (the selection
     against the all-effects run)."""
     checks = []
     speedup = reference["seconds"] / max(selected["seconds"], 1e-9)
@@ -212,4 +213,29 @@ def run(args) -> int:
             fsio.write_json(path, results)
     print(flush=True)
     print(table(results), flush=True)
+    _records.write_record(
+        "effects", title="Effects: simulate only what a scene calls for", merge_on="scene",
+        context=f"each scene run with every effect on (all) and with the measured selection (auto), {args.preset.capitalize()}"
+                + (f", steps capped at {args.iterations}" if args.iterations else ", uncapped"),
+        rows=record_rows(results))
     return 0
+
+
+def record_rows(results: dict) -> list[dict]:
+    """One row per scene whose two runs finished: times, ratio, accuracy of both, the selection."""
+    rows = []
+    for scene, runs in results["scenes"].items():
+        ref, sel, summary = runs.get(REFERENCE, {}), runs.get(SELECTED, {}), results["summary"].get(scene)
+        if summary is None:
+            continue
+
+        def pair(key, spec):
+            return " / ".join("-" if r.get(key) is None else format(r[key], spec) for r in (ref, sel))
+
+        rows.append({"scene": scene, "all s": round(ref["seconds"], 1), "auto s": round(sel["seconds"], 1),
+                     "wall / CPU ratio": f"{summary['speedup']:.2f}x / {summary['cpu_speedup']:.2f}x",
+                     "F1 all / auto": pair("f1", ".2f"), "albedo RMSE all / auto": pair("albedo_rmse", ".3f"),
+                     "PSNR all / auto": pair("psnr", ".2f"), "selected": describe(sel.get("decision")),
+                     "targets": "pass" if summary["ok"] else "FAIL: " + ", ".join(
+                         c["target"] for c in summary["checks"] if not c["ok"])})
+    return rows

@@ -46,6 +46,7 @@ from ..render import effects, projective  # noqa: F401  (registers the sft_ inte
 from ..render.fields import ConstantField
 from ..render.scene import RenderSettings, SceneRenderer
 from ..synth import layout
+from . import _records
 
 SHARED = Path(os.environ.get("SFT_SHARED_DATA", "/work/shared/data"))
 MESHES = {"armadillo": "meshes/stanford/armadillo_86k.obj", "bob": "meshes/crane/bob/bob_tri.obj"}
@@ -298,7 +299,7 @@ def _summarise(spec: str, rows: list[dict], base_grads: dict, ref: dict, every: 
 
 
 def run(args) -> int:
-    variant.choose()
+    chosen = variant.choose()
     t_start = time.perf_counter()
     bench = _Bench(args)
     a = args
@@ -376,6 +377,18 @@ def run(args) -> int:
           f"against that of the reference (sppi=0: the shadow-free part alone); mean: the same with the mean of the "
           f"steps' shadow parts (what averaging over steps leaves: the bias). {time.perf_counter() - t_start:.0f} s in all",
           flush=True)
+    bounces = "direct" if a.max_depth <= 2 else f"{a.max_depth - 2} bounce{'s' if a.max_depth > 3 else ''}"
+    scene = f"{a.mesh} {a.faces / 1000:g}k, {a.resolution} px, {a.envmap}, {bounces}"
+    base = results[0]
+    _records.write_record(
+        "hdr", title="HDR-lit step cost", variant=chosen, merge_on="scene",
+        show=["scene", "self-shadowed %", "samples", "without s", "with s", "ratio", "shadow error"],
+        context="CPU seconds of a geometry step (2 views) without and with shadow gradients; shadow error: relative "
+                "squared error against a high-sample reference",
+        rows=[{"scene": scene, "self-shadowed %": round(100 * bench.self_shadowing, 1),
+               "samples": parse_config(r["config"]).get("sppi"), "without s": round(base["step"], 2),
+               "with s": round(r["step"], 2), "ratio": round(r["ratio"], 2), "shadow error": round(r["shadow_error"], 2),
+               "opt cos without / with": f"{base['opt_cos']:.3f} / {r['opt_cos']:.3f}"} for r in results[1:]])
     if a.out:
         a.out.parent.mkdir(parents=True, exist_ok=True)
         a.out.write_text(json.dumps({"args": {k: str(v) for k, v in vars(a).items()},

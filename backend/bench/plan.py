@@ -1,8 +1,8 @@
 """Predicted against measured: the plan's time, held-out PSNR and the calibration's F1 on held-out captures.
 
 ``python -m backend bench plan --out OUT [--preset draft] [--captures a,b,...]`` synthesises
-ten small captures of different kinds, none of which set a constant of the cost model
-(optimize/plan.py), the accuracy gains (optimize/forecast.py) or the calibration (``bench
+thirteen small captures of different kinds, none of which set a constant of the cost model
+(planning/time_plan.py), the accuracy gains (planning/accuracy_forecast.py) or the calibration (``bench
 calibrate``), and runs ``reconstruct CAPTURE --preset PRESET --track-accuracy`` on each with
 every other default (staged material, effects measured), as child processes, one after the
 other:
@@ -12,9 +12,9 @@ other:
 - ``teacup48``: the teacup (a concavity the visual hull fills), point lights;
 - ``arma_env64``: the armadillo under ``forest_slope`` (self-shadowing: shadow gradients);
 - ``spot_flash48``: Spot with a texture, lit by a flash at each camera;
-- five more, added on 2026-11-29 and unseen by every constant and choice before: the happy
-  Buddha under ``venice_sunset``, the Stanford dragon under a flash, Spot under
-  ``studio_small_03``, the teacup under ``forest_slope`` and the armadillo under point lights.
+- the happy Buddha under ``venice_sunset``, the Stanford dragon under a flash, Spot under
+  ``studio_small_03``, the teacup under ``forest_slope``, the armadillo under point lights;
+- blub under ``venice_sunset``, Bob with a texture under point lights, the bunny under a flash.
 
 For each it reads the ``preset`` event (``predicted_minutes``, planned once the run has
 decided its effects; ``predicted_psnr``, this capture's probe plus the preset's gain;
@@ -22,7 +22,8 @@ decided its effects; ``predicted_psnr``, this capture's probe plus the preset's 
 with the process's wall clock, the run's last held-out PSNR (``accuracy_time``; the synthetic
 captures' own held-out views, which every run fits around) and its F1@0.01 against the
 capture's true mesh. Prints a table, the median and worst absolute errors, and writes
-``OUT/plan.json``. Target (issue #23): time within ±30 %, accuracy within 2 dB or 0.03 F1.
+``OUT/plan.json`` and the record ``plan`` (``--calibrate``: ``forecast``). Target: time within
+±30 %, accuracy within 2 dB or 0.03 F1.
 
 ``--calibrate`` runs the ``TRAINING`` captures instead (seven others, of the same kinds) and
 writes the preset's gain, the median of (last held-out PSNR − probe) over them, into
@@ -33,15 +34,14 @@ from __future__ import annotations
 
 import json
 import statistics
-import subprocess
-import sys
 import time
 from pathlib import Path
 
 from .. import fsio
 from ..errors import InputError, require
 from ..events import Emitter
-from ..optimize.forecast import GAINS_FILE, fit_line
+from ..planning.accuracy_forecast import GAINS_FILE, fit_line
+from . import _launch, _records
 from ._data import SHARED_DATA
 from ._machine import code_version, machine
 from ._replan import CHECKPOINTS, said_errors
@@ -58,7 +58,7 @@ CAPTURES = {
                    "--lighting", "env", "--env", ENVMAPS / "forest_slope_1k.hdr", "--albedo", "pattern"],
     "spot_flash48": ["--mesh", MESHES / "crane" / "spot" / "spot.obj", "--up", "y", "--views", 12, "--resolution", 48,
                      "--lighting", "flash", "--albedo", "pattern"],
-    # five more, added on 2026-11-29: none of them set anything either
+    # none of these set anything either
     "buddha_env64": ["--mesh", MESHES / "stanford" / "happy_buddha_vrip_res3.ply", "--up", "y", "--views", 14,
                      "--resolution", 64, "--lighting", "env", "--env", ENVMAPS / "venice_sunset_1k.hdr"],
     "sdragon_flash48": ["--mesh", MESHES / "stanford" / "dragon_watertight_100k.obj", "--up", "y", "--views", 12,
@@ -68,7 +68,7 @@ CAPTURES = {
     "teacup_env48": ["--mesh", MESHES / "shapefromtracing" / "teacup.obj", "--up", "y", "--views", 8,
                      "--resolution", 48, "--lighting", "env", "--env", ENVMAPS / "forest_slope_1k.hdr"],
     "arma48": ["--mesh", MESHES / "stanford" / "armadillo_86k.obj", "--up", "y", "--views", 12, "--resolution", 48],
-    # three more, added on 2026-11-29 after the gain's line was fitted: they test it unseen
+    # nor these, which came after the gain's line was fitted: they test it unseen
     "blub_env48": ["--mesh", MESHES / "crane" / "blub" / "blub_triangulated.obj", "--up", "y", "--views", 10,
                    "--resolution", 48, "--lighting", "env", "--env", ENVMAPS / "venice_sunset_1k.hdr"],
     "bob48": ["--mesh", MESHES / "crane" / "bob" / "bob_tri.obj", "--up", "y", "--views", 10, "--resolution", 48,
@@ -117,9 +117,8 @@ def synthesise(name: str, out: Path, log: Path) -> Path:
         if isinstance(arg, Path):
             require(arg.is_file(), arg, "benchmark data not found", "fetch the shared data or set SFT_SHARED_DATA")
     log.parent.mkdir(parents=True, exist_ok=True)
-    cmd = [sys.executable, "-m", "backend", "synth", "--out", str(folder), "--overwrite", *map(str, spec)]
-    with open(log, "w") as err:
-        rc = subprocess.run(cmd, stdout=subprocess.DEVNULL, stderr=err, cwd=REPO).returncode
+    rc = _launch.run(_launch.backend("synth", "--out", folder, "--overwrite", *spec), log=log, events=False,
+                     cwd=REPO).rc
     require(rc == 0, log, f"synth of {name} failed", "see the log")
     return folder
 
@@ -253,8 +252,61 @@ def run(args) -> int:
     print(table(rows), flush=True)
     if args.calibrate:
         write_gain(args.gains_file, args.preset, rows, doc)
+    write_record(rows, args.preset, args.calibrate, args.variant)
     emit("done", result=str(args.out / "plan.json"), **doc["summary"])
     return 0 if all(r["rc"] == 0 for r in rows) else 1
+
+
+def write_record(rows: list[dict], preset: str, calibrate: bool, variant: str | None) -> None:
+    """The runs as a benchmark record: ``forecast`` (the training captures' gains, per preset) with
+    ``--calibrate``, else ``plan`` (the held-out captures' promises against their runs)."""
+    def pct(v):
+        return None if v is None else round(100 * v)
+
+    if calibrate:
+        name = _records.record_name("forecast", variant)
+        path = _records.folder() / f"{name}.json"
+        try:
+            earlier = _records.read(path)["figures"]["rows"] if path.is_file() else []
+        except (ValueError, KeyError):
+            earlier = []
+        by_capture = {r["capture"]: dict(r) for r in earlier}
+        label = preset.capitalize()
+        for r in rows:
+            if r.get("rc") != 0:
+                continue
+            row = by_capture.setdefault(r["capture"], {"capture": r["capture"]})
+            row.update({"lighting": r.get("lighting_kind"), "probe dB": r.get("probe_psnr"),
+                        f"{label} dB": r.get("psnr"), f"{label} gain dB": r.get("gain_db")})
+        gains = {k: _median_spread([r[k] for r in by_capture.values() if r.get(k) is not None])[0]
+                 for k in dict.fromkeys(k for r in by_capture.values() for k in r if k.endswith("gain dB"))}
+        _records.write_record(
+            "forecast", title="Held-out PSNR gain per preset", variant=variant,
+            context="training captures' held-out PSNR at a run's end against its probe; medians into "
+                    "backend/forecast.json",
+            rows=list(by_capture.values()), scalars={f"median {k}": v for k, v in gains.items()})
+        return
+    name = _records.record_name("plan", variant)
+    path = _records.folder() / f"{name}.json"
+    try:  # a run of some captures replaces their rows and keeps the others'
+        earlier = _records.read(path)["figures"]["rows"] if path.is_file() else []
+    except (ValueError, KeyError):
+        earlier = []
+    new = [{"capture": r["capture"], "lighting": r.get("lighting_kind"), "predicted min": r.get("predicted_minutes"),
+            "measured min": r.get("measured_minutes"), "time error %": pct(r.get("time_error")),
+            "probe dB": r.get("probe_psnr"), "held-out dB": r.get("psnr"), "predicted − measured dB": r.get("psnr_error"),
+            "F1@0.01": None if r.get("f1") is None else round(100 * r["f1"], 1)} for r in rows]
+    merged = [r for r in earlier if r.get("capture") not in {n["capture"] for n in new}] + new
+    times = [abs(r["time error %"]) for r in merged if r.get("time error %") is not None]
+    psnrs = [abs(r["predicted − measured dB"]) for r in merged if r.get("predicted − measured dB") is not None]
+    _records.write_record(
+        "plan", title="Predicted time and held-out PSNR", variant=variant,
+        context=f"{preset.capitalize()} on captures no constant was fitted to: the promise against the run's time "
+                "and last held-out PSNR",
+        show=["capture", "predicted min", "measured min", "time error %", "held-out dB", "predicted − measured dB",
+              "F1@0.01"], rows=merged,
+        scalars={"runs": len(merged), "within ±30 % in time": sum(t <= 100 * TIME_TOLERANCE for t in times),
+                 "within 2 dB": sum(d <= PSNR_TOLERANCE for d in psnrs)})
 
 
 def write_gain(path: Path, preset: str, rows: list[dict], doc: dict) -> None:
@@ -280,7 +332,7 @@ def write_gain(path: Path, preset: str, rows: list[dict], doc: dict) -> None:
                                     for r in rows},
                        "code": doc["code"], "measured": doc["measured"], "machine": doc["machine"]}
     fsio.write_json(path, {"about": "held-out PSNR gain of each preset over the capture's accuracy probe "
-                                    "(optimize/forecast.py); python -m backend bench plan --calibrate --preset P",
+                                    "(planning/accuracy_forecast.py); python -m backend bench plan --calibrate --preset P",
                            "presets": presets})
     per_kind = ", ".join(f"{k} {v['gain_db']:+.2f} dB over {len(v['captures'])}" for k, v in kinds.items())
     fitted = "" if line is None else f"; line {line['intercept']:+.2f} + {line['slope']:.3f} x probe dB"

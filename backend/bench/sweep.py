@@ -23,10 +23,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import os
 import statistics
-import subprocess
-import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -41,9 +38,9 @@ from ..events import Emitter
 from ..geometry.mesh import Mesh, load_mesh
 from ..metrics.image import image_metrics
 from ..optimize.config import ReconstructConfig
-from ..optimize.presets import PRESETS
+from ..planning.presets import PRESETS
 from ..render.views import render_views
-from . import _all, _report
+from . import _all, _launch, _records, _report
 from ._machine import REPO, code_version, machine, machine_line  # noqa: F401  (bench/effects imports them from here)
 from ._ray import require_ray, run_tasks
 from ._sweep_scenes import SCENES, ensure
@@ -126,27 +123,13 @@ GRIDS = {
 # -- measuring one run ------------------------------------------------------------------------------
 def reconstruct_child(capture: Path, run: Path, setting: Setting, log: Path, seed: int = 0,
                       variant: str | None = None) -> dict:
-    """Run ``python -m backend reconstruct`` for ``setting``; wall and CPU seconds, peak memory,
-    load average before and after, exit code."""
-    cmd = [sys.executable, "-m", "backend", "reconstruct", str(capture), "--out", str(run), "--overwrite",
-           "--seed", str(seed), *setting.args()] + (["--variant", variant] if variant else [])
-    env = dict(os.environ, PYTHONPATH=str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", ""),
-               PYTHONUNBUFFERED="1")
-    log.parent.mkdir(parents=True, exist_ok=True)
-    load_before = os.getloadavg()[0]
-    start = time.perf_counter()
-    with open(log, "w") as err:
-        proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=err, env=env, cwd=REPO)
-        try:
-            _, status, usage = os.wait4(proc.pid, 0)
-        except BaseException:
-            proc.kill()
-            proc.wait()
-            raise
-        proc.returncode = os.waitstatus_to_exitcode(status)
-    return {"seconds": time.perf_counter() - start, "cpu_seconds": usage.ru_utime + usage.ru_stime,
-            "peak_mb": usage.ru_maxrss / 1024.0, "load_before": load_before, "load_after": os.getloadavg()[0],
-            "rc": proc.returncode}
+    """Run ``python -m backend reconstruct`` for ``setting`` (its stderr to ``log``); wall and CPU
+    seconds, peak memory, load average before and after, exit code."""
+    argv = _launch.backend("reconstruct", capture, "--out", run, "--overwrite", "--seed", seed, *setting.args(),
+                           *(["--variant", variant] if variant else []))
+    child = _launch.run(argv, log=log, events=False)
+    return {"seconds": child.seconds, "cpu_seconds": child.cpu_seconds, "peak_mb": child.peak_mb,
+            "load_before": child.load_before, "load_after": child.load_after, "rc": child.rc}
 
 
 # -- novel-view and relit scores ----------------------------------------------------------------
@@ -309,8 +292,8 @@ def add_arguments(parser) -> None:
     parser.add_argument("--cpus-per-run", type=float, default=2,
                         help="with --ray: CPUs each run declares (Ray's num_cpus; default: %(default)s)")
     parser.add_argument("--all", action="store_true",
-                        help="run every measurement behind docs/results.md and bench/ into --out (bench/_all.py): "
-                             "OUT/all.md holds each section's commands and tables")
+                        help="run every benchmark behind bench/records (and docs/results.md) into --out "
+                             "(bench/_all.py): OUT/all.md holds each job's commands and tables")
     parser.add_argument("--only", help="with --all: only these jobs (comma-separated; --list names them)")
     parser.add_argument("--list", action="store_true", help="with --all: print the jobs and their hours, run nothing")
 
@@ -360,8 +343,25 @@ def run(args) -> int:
             record(i + 1, scene, setting, row)
     rows = load_results(results)
     written = _report.write(rows, args.report, SCENES, history=load_history(results))
+    good = _report.ok_rows(rows)
+    _records.write_record(
+        "sweep", title="Accuracy versus time: the sweep", variant=next((r["machine"].get("variant") for r in good
+                                                                        if r.get("machine")), None),
+        context=f"the benchmark scenes over the '{args.grid}' grid around Draft, one constant material, "
+                "wall and CPU seconds of the whole reconstruct process; the full report is bench/report.md",
+        rows=[{"scene": r["scene"], "setting": r["name"].replace("draft:", "draft, ").replace("=", " "),
+               "wall s": round(r["seconds"]), "CPU s": round(r.get("cpu_seconds") or 0), "F1@0.01": round(r["f1"], 1),
+               "Chamfer-L1": round(r["chamfer_l1"], 4), "held-out dB": _round(r.get("novel_psnr"), 1),
+               "relit dB": _round(r.get("relit_psnr"), 1)}
+              for r in sorted(good, key=lambda r: (list(SCENES).index(r["scene"]) if r["scene"] in SCENES else 99,
+                                                   r["seconds"]))],
+        plots=sorted({str(Path(args.report) / f"pareto_{r['scene']}.png") for r in good}))
     emit("done", report=str(written), results=str(results), runs=len(rows))
     return 0
+
+
+def _round(value, digits: int):
+    return None if value is None else round(value, digits)
 
 
 def _run_all(args, emit) -> int:

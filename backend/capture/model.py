@@ -96,7 +96,7 @@ class Environment:
     rotation_z_deg: float = 0.0
     provenance: str = "given"  # or "estimated" (lighting alignment, backend.lighting)
     # the map's pixels held in memory (H, W, 3), read instead of ``path`` (a map being fitted:
-    # backend.lighting.estimate; ``path`` is where it is written)
+    # backend.lighting.estimated_map; ``path`` is where it is written)
     pixels: np.ndarray | None = field(default=None, repr=False, compare=False)
     frame: str = "world"  # or "camera": fixed to each view's camera (see above)
 

@@ -6,7 +6,7 @@ import numpy as np
 
 from ..errors import InputError, require
 from .format import check_pose
-from .images import image_size, read_mask, read_rgba
+from .images import image_size, read_linear_rgb, read_mask, read_rgba
 from .model import Capture
 
 
@@ -22,6 +22,21 @@ def validate_environment(capture: Capture) -> None:
             "environment map contains NaN or Inf pixels", "re-export the HDR map")
 
 
+SIGNAL = 5e-4  # linear: a frame whose brightest pixel in its mask is below this (about 2/255 in sRGB) is black
+
+
+def _has_signal(image: np.ndarray, mask: np.ndarray | None) -> bool:
+    """Whether any pixel inside ``mask`` (the whole frame without one) is brighter than ``SIGNAL``;
+    an empty mask has nothing to judge (the every-mask-empty check covers all of them empty)."""
+    brightest = image.max(axis=-1) if image.ndim == 3 else image
+    if mask is not None:
+        inside = mask > 0.5
+        if not inside.any():
+            return True
+        brightest = brightest[inside]
+    return bool(brightest.max() > SIGNAL)
+
+
 def validate_capture(capture: Capture, check_masks: bool = True) -> None:
     """Raise :class:`InputError` on the first problem found."""
     with_mask = [f for f in capture.frames if f.mask is not None]
@@ -29,7 +44,7 @@ def validate_capture(capture: Capture, check_masks: bool = True) -> None:
         lacking = next(f for f in capture.frames if f.mask is None)
         raise InputError(lacking.image, f"frame {lacking.name} has no mask ({len(with_mask)} masks for "
                          f"{len(capture.frames)} frames)", "give one mask per frame (or none at all)")
-    mask_area = 0.0
+    mask_area, dark = 0.0, []
     for frame in capture.frames:
         check_pose(frame.camera.camera_to_world, frame.image, f"frame {frame.name}")
         w, h = image_size(frame.image)
@@ -42,9 +57,17 @@ def validate_capture(capture: Capture, check_masks: bool = True) -> None:
             mw, mh = image_size(path)
             require((mw, mh) == (w, h), path, f"mask is {mw}x{mh} but its frame is {w}x{h}",
                     "resize the mask to the frame or re-export it")
-        if check_masks and frame.mask is not None:
-            mask_area += float(read_mask(frame.mask).mean())
+        mask = read_mask(frame.mask) if check_masks and frame.mask is not None else None
+        if mask is not None:
+            mask_area += float(mask.mean())
+        if not _has_signal(read_linear_rgb(frame.image), mask):
+            dark.append(frame)
     if check_masks and with_mask:
         require(mask_area > 0, with_mask[0].mask.parent, "every mask is empty",
                 "check the mask polarity (object = white) and the mask files")
+    if dark:
+        names = ", ".join(f.name for f in dark[:5]) + (f" and {len(dark) - 5} more" if len(dark) > 5 else "")
+        where = "inside its mask" if len(dark) == 1 else "inside their masks"
+        raise InputError(dark[0].image, f"{len(dark)} of {len(capture.frames)} frames have no signal {where} "
+                         f"(black: {names})", "re-export those frames, or remove them and their masks from the capture")
     validate_environment(capture)

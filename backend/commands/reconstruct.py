@@ -1,27 +1,17 @@
-"""``reconstruct``: refine a mesh until path-traced renders match the capture.
-
-Writes the run folder of docs/protocol.md: events.jsonl, snapshot.json + snapshots/,
-state/ (for --resume), result.ply and report.json. Exit codes: 0 done, 1 internal error,
-2 bad input, 130 cancelled (SIGTERM, SIGINT or RUN/STOP). ``reconstruct VIDEO --masks MASKS --env HDR``
-first writes RUN/capture as ``capture-from-video`` does (reused by --resume).
-
-With no options it runs the whole method: the staged mesh-color material, effects measured
-on the scene, the Balanced preset (or, with --time-budget, the preset that fits it), and
-``RUN/result.glb``. ``--env HDR`` (with ``--env-strength`` and ``--env-rotation``) lights
-any capture with that map. ``$SFT_RECONSTRUCT_SETTINGS`` (a JSON object of settings, e.g.
-``{"max_size": 32}``) applies over the preset and under the options: tests and scripted
-runs shrink a run with it without changing the command line.
-
-The command is its options; the job (checks, config, run) is :mod:`backend.optimize.job`."""
+"""``reconstruct``: refine a mesh until path-traced renders match the capture, into the run
+folder of docs/protocol.md. Exit codes: 0 done, 1 internal error, 2 bad input, 130 cancelled
+(SIGTERM, SIGINT or RUN/STOP). ``$SFT_RECONSTRUCT_SETTINGS`` (a JSON object of settings)
+applies over the preset and under the options. The command is its options; the job (checks,
+config, plan, run) is :mod:`backend.planning.job`."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
-from ..lighting.setup import HELP as LIGHTING_HELP, MODES as LIGHTING_MODES
-from ..optimize import job
+from ..lighting.modes import HELP as LIGHTING_HELP, MODES as LIGHTING_MODES
+from ..planning import job
 from ..optimize.config import STAGED_FACE_GROWTH, ReconstructConfig
-from ..optimize.presets import DEFAULT, FILL_FACTOR, PRESETS, calibrated
+from ..planning.presets import DEFAULT, FILL_FACTOR, PRESETS, calibrated
 from ..video.inputs import add_lighting_arguments
 
 INIT_HELP = "carve (visual hull; default with masks), sphere, box, spheres (sphere cloud), points (SfM + Poisson), or a mesh file"

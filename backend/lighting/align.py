@@ -1,4 +1,5 @@
-"""Lighting alignment: the environment map's rotation about Z and its strength, from the frames.
+"""Alignment of a captured environment map with the frames: its rotation about Z and its
+strength (``capture-from-video``; the result is a :class:`MapAlignment`).
 
 The coarse mesh (the masks' visual hull) is rendered with a constant diffuse albedo of 0.5
 under the map (direct light, :mod:`.transport`) at a few views and a small size, and compared
@@ -6,10 +7,10 @@ with the linearised frames on pixels well inside the masks that are not clipped.
 channel the gain that best scales the render onto the frame is solved in closed form at
 every rotation, so the object's brightness and colour do not bias the rotation; beside it a
 white glossy (GGX) image gets its own non-negative gain, so highlights are fitted rather than
-read as diffuse shading turned towards the viewer. A coarse
-search over all rotations is followed by a gradient refinement: a rotation by θ shifts the
-map's columns by θ·W/360 texels (periodic linear interpolation), whose derivative is exact,
-and the gains drop out of the derivative because they are optimal (d loss/d gain = 0).
+read as diffuse shading turned towards the viewer. A coarse search over all rotations is
+followed by a gradient refinement: a rotation by θ shifts the map's columns by θ·W/360
+texels (periodic linear interpolation), whose derivative is exact, and the gains drop out of
+the derivative because they are optimal (d loss/d gain = 0).
 
 The object alone observes only the product exposure × white balance × strength × albedo.
 Where the frames' background shows the surroundings, it fixes exposure × white balance ×
@@ -40,6 +41,8 @@ INTERIOR = 0.999  # share of a small pixel's source pixels that must be inside t
 
 @dataclass
 class AlignConfig:
+    """The alignment's sampling, search and refinement settings."""
+
     views: int = 8  # frames used, evenly spread
     size: int = 48  # long side of the small frames, pixels
     env_width: int = 64  # columns of the reduced map (rows: half)
@@ -56,7 +59,10 @@ class AlignConfig:
 
 
 @dataclass
-class LightingEstimate:
+class MapAlignment:
+    """Where a captured map sits and how bright it is, with the search that found it
+    (``provenance()``: the capture's ``provenance.lighting``)."""
+
     rotation_z_deg: float
     strength: float
     gains: list[float]  # per channel: frame ≈ gain × diffuse render (albedo 0.5, strength 1) + glossy part
@@ -72,6 +78,7 @@ class LightingEstimate:
     ties: list[dict] = field(default_factory=list)  # near-tied shading minima and their background errors
 
     def provenance(self) -> dict:
+        """The alignment as JSON (rounded curves), for capture.json's provenance."""
         return {"aligned": True, "rotation_z_deg": self.rotation_z_deg, "strength": self.strength,
                 "gains": self.gains, "loss": self.loss, "views": self.views, "pixels": self.pixels,
                 "seconds": round(self.seconds, 2),
@@ -83,6 +90,7 @@ class LightingEstimate:
 
 
 def _box(array: np.ndarray, width: int, height: int) -> np.ndarray:
+    """An image (H, W) or (H, W, C) box-filtered to ``width`` x ``height``."""
     if array.shape[:2] == (height, width):
         return array.astype(np.float32)
     chans = array[..., None] if array.ndim == 2 else array
@@ -146,6 +154,7 @@ class RotationLoss:
         self.norm = float((self.targets ** 2).sum())
 
     def subset(self, keep: np.ndarray) -> "RotationLoss":
+        """The loss on the pixels ``keep`` selects."""
         return RotationLoss([m[keep] for m in self.matrices], self.env, self.targets[keep])
 
     def _fit(self, env: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -213,11 +222,11 @@ def refine(loss: RotationLoss, start: float, step: float, config: AlignConfig,
 
 
 def align_lighting(capture: Capture, mesh: Mesh, env_pixels: np.ndarray, config: AlignConfig | None = None,
-                   rotation_z_deg: float | None = None, emit=lambda kind, **fields: None) -> LightingEstimate:
-    """Estimate the environment's rotation (unless given) and strength from the frames.
+                   rotation_z_deg: float | None = None, emit=lambda kind, **fields: None) -> MapAlignment:
+    """The map's rotation about Z (unless ``rotation_z_deg`` gives it) and strength, from the frames.
 
-    ``mesh`` is the coarse object (the visual hull); ``env_pixels`` the full map. Needs a
-    Mitsuba variant chosen (``backend.variant.choose()``)."""
+    ``mesh`` is the coarse object (the visual hull); ``env_pixels`` the full map (H, W, 3);
+    ``emit`` gets ``progress`` events. Needs a Mitsuba variant chosen (``backend.variant.choose()``)."""
     config = config or AlignConfig()
     start = time.time()
     caster = RayCaster(mesh)
@@ -272,7 +281,7 @@ def align_lighting(capture: Capture, mesh: Mesh, env_pixels: np.ndarray, config:
     value, _, gains = loss(theta, gradient=False)
     background = match_background([(s[1], s[2], s[4]) for s in samples], reduce_environment(env_pixels, 256), theta)
     response, strength, scale_from = camera_response(gains, background)
-    return LightingEstimate(rotation_z_deg=float(theta % 360.0), strength=strength,
+    return MapAlignment(rotation_z_deg=float(theta % 360.0), strength=strength,
                             gains=[float(g) for g in gains], loss=value, response=response, scale_from=scale_from,
                             background=background, coarse=coarse, refine=[(d % 360.0, v) for d, v in curve],
                             views=[s[0] for s in samples], pixels=len(points), seconds=time.time() - start,

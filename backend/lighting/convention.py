@@ -2,19 +2,16 @@
 
 Images fix only the product of albedo and light: an albedo s times brighter under a light
 s times dimmer renders the same. Every lighting model fitted with the material
-(``--lighting estimate``: backend.lighting.estimate; ``--lighting flash``:
-backend.lighting.flash) settles this one free scale the same way: after each material
-stage, albedo and specular are multiplied by s = ``ALBEDO_CONVENTION`` / mean albedo and
-the light divided by s, so the object's mean albedo (over its faces and the three
+(backend.lighting.base.LightingModel) settles this one free scale the same way: after each
+material stage, albedo and specular are multiplied by s = ``ALBEDO_CONVENTION`` / mean albedo
+and the light divided by s, so the object's mean albedo (over its faces and the three
 channels) is ``ALBEDO_CONVENTION``; the renders do not change while no value clips at 1.
 
 The product is free per colour channel too: a bluer albedo under a yellower light renders
-the same diffuse image. A flash is white (one scalar intensity). An estimated map starts
-white (a uniform grey, or the background's colours) and the fit settles the split from
-there; it is not forced afterwards. Making the map white on average at every stage moves the
-specular lobe's colour (one scalar, lit by the map), and on the textured torus it cost held-out
-accuracy without a steady gain relit (docs/notes/2026-11-28-light-colour-and-rig.md). Scoring
-under another light therefore treats the colour as free, as the scale (backend.metrics.evaluate)."""
+the same diffuse image. A flash is white (one scalar intensity); an estimated map starts
+white and the fit settles the split, unforced afterwards, since forcing the map white moves
+the specular lobe's colour (one scalar, lit by the map). Scoring under another light
+therefore treats the colour as free, as the scale (backend.metrics.evaluate)."""
 
 from __future__ import annotations
 

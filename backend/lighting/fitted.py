@@ -1,9 +1,9 @@
-"""The lighting a run fitted, for rendering other views of the same capture (held-out views).
+"""The lighting a run fitted, read back for rendering other views of the same capture.
 
 Both scorers of a run's held-out views take it from here: ``evaluate`` on a finished run's
 folder (backend.metrics.evaluate, via :func:`from_run`: report.json and RUN/environment.exr)
-and ``--track-accuracy`` during a run (backend.optimize.accuracy, via :func:`from_live`: the
-run's lighting object and material). :func:`light_views` then lights the views:
+and ``--track-accuracy`` during a run (backend.planning.tracking, via :func:`from_live`: the
+run's lighting model and material). :func:`light_views` then lights the views:
 
 - ``captured``: the views' own point lights and map, the map x the staged material's fitted
   light factor (the factor scales the environment only, as in the fit);
@@ -13,9 +13,9 @@ run's lighting object and material). :func:`light_views` then lights the views:
 - ``flash``: one point light at each view's camera centre with the fitted intensity, no map.
 
 Under ``estimate`` and ``flash`` the albedo is in the units of the scale convention
-(backend.lighting.convention: mean albedo 0.5, the light rescaled to match), so only this
-lighting renders the run's material at the capture's brightness; views under another light
-(``relit``) need the albedo brought to the truth's units first (``evaluate`` does so)."""
+(backend.lighting.convention), so only this lighting renders the run's material at the
+capture's brightness; views under another light (``relit``) need the albedo brought to the
+truth's units first (``evaluate`` does so)."""
 
 from __future__ import annotations
 
@@ -28,7 +28,7 @@ import numpy as np
 
 from ..capture.model import Capture, Environment
 from ..errors import InputError, require
-from . import estimate, flash
+from . import estimated_map, flash
 
 MODELS = ("captured", "estimate", "flash")
 
@@ -55,17 +55,17 @@ class RunLighting:
         factor = "" if self.light_factor == 1.0 else f" x light factor {self.light_factor:.4g}"
         if self.model == "estimate":
             rig = ", fixed to the camera" if self.environment is not None and self.environment.frame == "camera" else ""
-            return f"the run's fitted environment map ({estimate.FILENAME}{rig}){factor}"
+            return f"the run's fitted environment map ({estimated_map.FILENAME}{rig}){factor}"
         return f"the views' own lights{factor}"
 
 
 def from_live(lighting, material) -> RunLighting:
-    """During a run: ``lighting`` is its fitted lighting (``Appearance.lighting``: an
-    EstimatedEnvironment, a Flash, or None for the captured one), ``material`` its material."""
+    """During a run: ``lighting`` is its fitted lighting model (``Appearance.lighting``: an
+    EstimatedEnvironment, a Flash, or None for the captured lighting), ``material`` its material."""
     factor = float(getattr(material, "light_factor", 1.0) or 1.0)
     if isinstance(lighting, flash.Flash):
         return RunLighting("flash", intensity=lighting.rgb_intensity)
-    if isinstance(lighting, estimate.EstimatedEnvironment):
+    if isinstance(lighting, estimated_map.EstimatedEnvironment):
         return RunLighting("estimate", lighting.environment(), light_factor=factor)
     return RunLighting("captured", light_factor=factor)
 
@@ -91,7 +91,7 @@ def from_run(folder: str | Path) -> RunLighting:
                 "the flash run's report has no positive lighting.intensity", "re-run or resume the reconstruction")
         return RunLighting("flash", intensity=np.broadcast_to(value.reshape(-1), (3,)).copy())
     if model.startswith("environment map"):
-        path = folder / str(lighting.get("file") or estimate.FILENAME)
+        path = folder / str(lighting.get("file") or estimated_map.FILENAME)
         require(path.is_file(), path, "the run's estimated environment map is missing",
                 "re-run or resume the reconstruction (it writes the map with every snapshot)")
         frame = "camera" if lighting.get("frame") == "camera" else "world"

@@ -1,4 +1,4 @@
-"""``--lighting flash``: a point light at every camera (a phone's flash, DTU-like captures),
+"""A point light at every camera (``--lighting flash``: a phone's flash, DTU-like captures),
 its intensity fitted with the material.
 
 Model. Frame f is lit by one isotropic point light at its camera centre c_f, of radiant
@@ -8,18 +8,16 @@ Lambertian point x of albedo rho and normal n is Mitsuba's point emitter:
 
     L(x) = rho / pi * I * max(0, n . w) / r^2,    w = (c_f - x) / r,  r = |c_f - x|
 
-(the 1/r^2 falloff), plus the specular lobe and, with more bounces, interreflections, all
-linear in I. Parameter: I = exp(latent), so it stays positive. It starts from what the
-frames show (``initial_intensity``); every material stage first solves it in closed form
-for the material as it is (renders are linear in I: k = sum w R T / sum w R^2 over the
-stage's weights, ``FlashFit.prepare``), then fits it by Adam jointly with the material
-latents (``FlashFit``, the ``lighting`` argument of ``material.stages.fit``, through the
-renderer's light scale). Geometry steps render with it and leave it fixed.
+plus the specular lobe and, with more bounces, interreflections, all linear in I. Parameter:
+I = exp(latent), so it stays positive. It starts from what the frames show
+(``initial_intensity``); every material stage first solves it in closed form for the material
+as it is (``FlashFit.prepare``), then fits it by Adam with the material (``FlashFit``, through
+the renderer's light scale). Geometry steps render with it and leave it fixed.
 
-Scale. rho x I is all the images fix; after each stage albedo and specular are multiplied by
-s and I divided by s so the object's mean albedo is 0.5 (backend.lighting.convention), and
-the report gives I under that convention. An RGB intensity is ambiguous with the albedo's
-colour as well (the convention fixes only the mean), so the command fits one scalar."""
+Scale. Images fix only rho x I; after each stage the scale convention multiplies albedo and
+specular by s and divides I by s (backend.lighting.convention), and the report gives I under
+it. An RGB intensity is ambiguous with the albedo's colour as well (the convention fixes only
+the mean), so the command fits one scalar."""
 
 from __future__ import annotations
 
@@ -30,6 +28,7 @@ import numpy as np
 
 from ..capture.images import read_linear_rgb, read_mask
 from ..capture.model import Capture, PointLight
+from .base import LightingFit, LightingModel
 from .convention import ALBEDO_CONVENTION, describe, normalise_albedo
 
 CONVENTION = describe("flash intensity")
@@ -69,9 +68,14 @@ def initial_intensity(capture: Capture, frames: int = INIT_FRAMES) -> float:
     return float(np.median(values)) if values and np.median(values) > 0 else 1.0
 
 
-class Flash:
-    """The fitted flash: log intensity ``latent`` ((1,) or (3,) RGB), the capture it lights
-    (its frames' lights follow the latent) and the history of its fit (``report``)."""
+class Flash(LightingModel):
+    """The fitted flash (backend.lighting.base.LightingModel).
+
+    Args:
+        capture: the capture it lights: its frames' light lists follow ``latent``.
+        latent: log intensity, (1,) or (3,) for RGB.
+        initial: the starting intensity (W/sr) ``restart`` goes back to; None: the latent's.
+    """
 
     lr: float = 0.1  # Adam step on the log intensity
 
@@ -84,12 +88,14 @@ class Flash:
 
     @classmethod
     def initial(cls, capture: Capture, rgb: bool = False) -> "Flash":
+        """The flash at ``initial_intensity``; ``rgb``: one latent per channel."""
         value = initial_intensity(capture)
         return cls(capture, np.full(3 if rgb else 1, math.log(value), np.float32), value)
 
     # -- the light ------------------------------------------------------------------------------
     @property
     def latent(self) -> np.ndarray:
+        """Log intensity; setting it places the new flash in every frame."""
         return self._latent
 
     @latent.setter
@@ -112,7 +118,8 @@ class Flash:
         """No environment: the flash is the only light."""
 
     def at_stage(self, stage: str) -> bool:
-        return False  # one parameter at every stage
+        """One parameter at every stage: never changes."""
+        return False
 
     def restart(self, capture: Capture | None = None) -> None:
         """Back to the initial intensity, to be fitted again (the relight on the final surface)."""
@@ -133,6 +140,7 @@ class Flash:
         """Nothing to write: the intensity is in the run's state and report."""
 
     def state(self) -> dict:
+        """The log intensity (a flash writes no file)."""
         return {"latent": [float(x) for x in self._latent]}
 
     def restore(self, state: dict) -> None:
@@ -141,6 +149,7 @@ class Flash:
             self.latent = state["latent"]
 
     def report(self) -> dict:
+        """report.json ``lighting``: the intensity (W/sr) under the convention, its start and rescalings."""
         return {"model": "flash", "intensity": self.intensity, "units": "W/sr",
                 "parameterisation": "a point light at each camera centre, radiance falling off as 1/r^2; "
                                     "intensity = exp(latent), fitted with the material",
@@ -156,10 +165,10 @@ class Flash:
         return FlashFit(self)
 
 
-class FlashFit:
-    """The flash's share of a material stage's Adam (``material.stages.fit``): its log
-    intensity as one more optimised variable, applied through the renderer's light scale
-    (the fitted intensity over the one the frames' lights carry) before every render."""
+class FlashFit(LightingFit):
+    """The flash's share of a material stage's Adam (backend.lighting.base.LightingFit): its
+    log intensity, applied through the renderer's light scale (the fitted intensity over the
+    one the frames' lights carry) before every render; no prior."""
 
     NAME = "flash"
 
@@ -169,6 +178,10 @@ class FlashFit:
 
         self.dr, self.mi = dr, mi
         self.flash = flash
+
+    @property
+    def lr(self) -> float:
+        return self.flash.lr
 
     def present(self, renderer) -> bool:
         return getattr(renderer, "n_lights", 0) > 0
@@ -198,14 +211,16 @@ class FlashFit:
         return self.mi.Float(self.flash.latent)
 
     def apply(self, renderer, latent) -> None:
+        """Light scale exp(latent - the flash's latent): 1 at the current intensity."""
         dr, mi = self.dr, self.mi
-        scale = dr.exp(latent - mi.Float(self.flash.latent))  # 1 at the current intensity
+        scale = dr.exp(latent - mi.Float(self.flash.latent))
         if dr.width(scale) == 3:
             renderer.set_light_scale(mi.Color3f(*(dr.gather(mi.Float, scale, mi.UInt32(c)) for c in range(3))))
         else:
             renderer.set_light_scale(mi.Color3f(scale, scale, scale))
 
     def penalty(self, latent):
+        """No prior on the intensity."""
         return self.mi.Float(0.0)
 
     def finish(self, renderer, latent) -> None:

@@ -25,11 +25,14 @@ ALBEDO_RANGE = (0.02, 1.0)
 
 @dataclass
 class BackgroundMatch:
+    """The frames' background fitted to the map's radiance in the same directions."""
+
     gains: np.ndarray  # frame ≈ gain × map radiance, per channel
     error: float  # squared residual relative to the background's energy (1 when it is black)
     pixels: int
 
     def provenance(self) -> dict:
+        """The match as JSON, for capture.json's provenance."""
         return {"gains": [float(g) for g in self.gains], "error": round(self.error, 4), "pixels": self.pixels}
 
 

@@ -7,7 +7,7 @@
     driver.on_remesh(mesh, material, cameras, reset=False)   # after a re-mesh (labels re-voted)
     driver.finalise()                                        # geometry converged: last, longer stages
     driver.restart(material, 3)                              # ... from grey, constants first (a relight)
-    driver.refine() / driver.skip_to() / driver.skip_rest()  # the schedule's other moves
+    driver.schedule.refine() / .skip_to()                      # the schedule's other moves
     driver.settle(renderer, images, masks, material)         # the end: keep the specular texture?
     driver.state() / driver.restore(state, images, masks)   # the schedule's position, for --resume
 
@@ -37,13 +37,6 @@ class MaterialDriver:
     resolution: int = 4  # mesh-color resolution r
     settings: FitSettings = field(default_factory=FitSettings)
     schedule: MaterialSchedule = field(default_factory=MaterialSchedule)
-    # shares of a run's time budget the geometry levels leave to the final material stages and
-    # polish rounds (enough for one polish round), and the polish rounds leave to what follows them
-    reserve: float = 0.4
-    polish_reserve: float = 0.05
-    # once a material cycle on the final mesh has been timed, polish rounds leave this many of
-    # its length instead: the refinement cycle, the specular check and the outputs
-    polish_reserve_cycles: float = 1.75
     labels: FaceLabels | None = None
     results: list[FitResult] = field(default_factory=list)
     specular_check: dict | None = None  # what settle() found
@@ -60,26 +53,6 @@ class MaterialDriver:
     def stage(self) -> str:
         """The stage the next cycle runs (MaterialSchedule.STAGES)."""
         return self.schedule.stage
-
-    def skip_rest(self) -> None:
-        """End the schedule now (a diffuse-only scene has no specular lobe to texture)."""
-        self.schedule.stage = "done"
-
-    def skip_to(self, stage: str) -> None:
-        """Go on to ``stage`` now (MaterialSchedule.skip_to)."""
-        self.schedule.skip_to(stage)
-
-    def refine(self, last: str = "specular") -> None:
-        """The surface moved under the finished material: its last stage runs again."""
-        self.schedule.refine(last)
-
-    def polish_share(self, last_cycle_seconds: float | None, budget_s: float | None) -> float:
-        """The share of a time budget polish rounds leave to what follows them: one material
-        cycle, the specular check and the outputs, in units of ``last_cycle_seconds`` (the
-        last cycle on the final mesh), or ``polish_reserve`` before one has been timed."""
-        if not (budget_s and last_cycle_seconds is not None):
-            return self.polish_reserve
-        return self.polish_reserve_cycles * last_cycle_seconds / budget_s
 
     def material(self, mesh: Mesh, cameras: list[Camera], images: list[np.ndarray],
                  masks: list[np.ndarray] | None) -> MeshColorMaterial:

@@ -27,10 +27,9 @@ import mitsuba as mi
 import numpy as np
 from scipy.ndimage import binary_erosion
 
+from ..lighting.light_factor import ENV_SCALE, LightFactor
 from .field import squash
 from .model import MeshColorMaterial
-
-ENV_SCALE = "environment.scale"
 
 
 @dataclass
@@ -147,52 +146,26 @@ def smoothness_penalty(material: MeshColorMaterial, name: str, edges: tuple[mi.U
     return dr.mean(dr.squared_norm(diff) if width == 3 else dr.square(diff))
 
 
-class LightFactor:
-    """The environment map's brightness factor k (scene scale = strength * k), as log k."""
-
-    def __init__(self, renderer, material: MeshColorMaterial):
-        self.renderer = renderer
-        self.material = material
-        self.present = ENV_SCALE in renderer.params
-        self.base = float(renderer.params[ENV_SCALE][0]) / material.light_factor if self.present else 1.0
-
-    def set(self, log_k) -> None:
-        self.renderer.params[ENV_SCALE] = self.base * dr.exp(log_k)
-        self.renderer.params.update()
-
-    def finish(self, log_k) -> float:
-        k = float(np.exp(dr.detach(log_k)[0]))
-        self.renderer.params[ENV_SCALE] = mi.Float(self.base * k)
-        self.renderer.params.update()
-        self.material.light_factor = k
-        return k
-
-
 def fit(renderer, images: list[np.ndarray], weights: list[np.ndarray] | None, material: MeshColorMaterial,
         names: list[str], settings: FitSettings, light: bool = False, stage: str = "fit",
         emit=None, views: list[int] | None = None, lighting=None) -> FitResult:
-    """Adam on the named channels' latents (and log brightness when ``light``), minimising the
-    weighted mean squared error of renders against ``images`` (only the ``views`` among them,
-    when given) plus the variance penalty. ``lighting`` (a fitted lighting model: the estimated
-    environment, backend.lighting.estimate, or the flash, backend.lighting.flash) adds its
-    parameters and penalty to the fit."""
+    """Adam on the named channels' latents (and the map's log brightness factor when ``light``:
+    backend.lighting.light_factor), minimising the weighted mean squared error of renders
+    against ``images`` (only the ``views`` among them, when given) plus the variance penalty.
+    ``lighting`` (a backend.lighting.base.LightingModel: the estimated map or the flash) adds
+    its fit's latent and penalty."""
     start = time.time()
     weights = _weights(weights, images)
     opt = mi.ad.Adam(lr=settings.lr, mask_updates=True)
     params = material.parameters()
     for n in names:
         opt[n] = params[n]
-    factor = LightFactor(renderer, material) if light else None
-    if factor is not None and factor.present:
-        opt["light"] = mi.Float(math.log(material.light_factor))
-    else:
-        factor = None
-    env = lighting.fit() if lighting is not None else None
-    if env is not None and env.present(renderer):
-        env.prepare(renderer, images, weights, views)  # a closed-form start where the model has one
-        opt[env.NAME] = env.initial()
-    else:
-        env = None
+    fits = [LightFactor(material, settings.light_lr)] if light else []  # backend.lighting.base.LightingFit
+    fits += [lighting.fit()] if lighting is not None else []
+    fits = [f for f in fits if f.present(renderer)]
+    for f in fits:
+        f.prepare(renderer, images, weights, views)  # a closed-form start where the model has one
+        opt[f.NAME] = f.initial()
     targets = [_tensor(img[..., :3]) for img in images]
     w = [_tensor(_weights3(x)) for x in weights]
     norms = [max(float(np.sum(x)), 1e-6) for x in weights]
@@ -203,9 +176,7 @@ def fit(renderer, images: list[np.ndarray], weights: list[np.ndarray] | None, ma
     edges = sample_edges(material) if settings.smoothness_weight else None
     for it in range(settings.iterations):
         decay = settings.lr_decay ** (it / max(settings.iterations - 1, 1))
-        opt.set_learning_rate({**{n: settings.lr * decay for n in names},
-                               **({"light": settings.light_lr * decay} if factor is not None else {}),
-                               **({env.NAME: lighting.lr * decay} if env is not None else {})})
+        opt.set_learning_rate({**{n: settings.lr * decay for n in names}, **{f.NAME: f.lr * decay for f in fits}})
         material.load_parameters({n: opt[n] for n in names})
         loss = 0.0
         count = min(settings.views_per_step, len(pool))
@@ -213,10 +184,8 @@ def fit(renderer, images: list[np.ndarray], weights: list[np.ndarray] | None, ma
             if not order:
                 order = [pool[i] for i in rng.permutation(len(pool))]
             v = int(order.pop())
-            if factor is not None:  # per view: the last backward pass used up the graph from log k
-                factor.set(opt["light"])
-            if env is not None:
-                env.apply(renderer, opt[env.NAME])
+            for f in fits:  # per view: the last backward pass used up the graph from the latents
+                f.apply(renderer, opt[f.NAME])
             img = renderer.render(v, seed=settings.seed * 100003 + it * 17 + v,
                                   spp=settings.spp or None, params=material.attach(renderer.params))
             view_loss = dr.sum(w[v] * pixel_loss(img - targets[v], settings.robust)).array / (norms[v] * count)
@@ -230,8 +199,8 @@ def fit(renderer, images: list[np.ndarray], weights: list[np.ndarray] | None, ma
         if settings.smoothness_weight:
             for n in names:
                 penalty += settings.smoothness_weight * smoothness_penalty(material, n, edges)
-        if env is not None:
-            penalty += env.penalty(opt[env.NAME])
+        for f in fits:
+            penalty += f.penalty(opt[f.NAME])
         dr.backward(penalty, flags=dr.ADFlag.Default | dr.ADFlag.AllowNoGrad)
         opt.step()
         result.losses.append(loss + float(penalty[0]))
@@ -239,12 +208,9 @@ def fit(renderer, images: list[np.ndarray], weights: list[np.ndarray] | None, ma
             emit("progress", stage=f"material:{stage}", iteration=it + 1, iterations=settings.iterations,
                  loss=result.losses[-1], faces=material.n_faces)
     material.load_parameters({n: dr.detach(opt[n]) for n in names})
-    if env is not None:
-        env.finish(renderer, opt[env.NAME])
-    if factor is not None:
-        result.light_factor = factor.finish(opt["light"])
-    else:
-        result.light_factor = material.light_factor
+    for f in fits:
+        f.finish(renderer, opt[f.NAME])
+    result.light_factor = material.light_factor
     result.seconds = time.time() - start
     return result
 

@@ -1,2 +1,3 @@
-"""Geometry reconstruction by differentiable path tracing: ``run.reconstruct`` (the library
-call), its levels and polish rounds, budget, records, targets, vertex steps and schedule."""
+"""Fitting a capture by differentiable path tracing: ``run.reconstruct`` (the one entry point),
+its levels and polish rounds, transitions, appearance, budget, convergence rules, records,
+targets and vertex steps. Nothing here imports ``backend.planning``."""

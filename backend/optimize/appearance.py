@@ -1,18 +1,5 @@
-"""Appearance between geometry levels: the staged material schedule and the choice of
-light-transport effects.
-
-- ``--material staged``: mesh-colors material (backend.material) run by its schedule, one
-  stage after every geometry level and to the end once geometry has converged; re-voted
-  labels and a neutral restart after every re-mesh; ``result.glb`` at the end.
-- ``--effects auto`` (default): backend.render.effects measures, on renders of the current
-  estimate, which effects matter and picks the integrator, depth, shadow gradients and the
-  specular lobe; re-checked after every re-mesh and when materials become spatially varying,
-  and after every geometry level while the lobe is off (turned on, it restarts from neutral
-  values and its constants are fitted).
-  ``all`` or a list forces them. Each decision is an ``effects`` event.
-- A fitted lighting (``--lighting estimate``/``flash``) gets constant-material cycles on the
-  initial mesh before any geometry step (``light_first``), and restarts with the material
-  once geometry has converged, to be fitted again on the final surface (``finalise``)."""
+"""Appearance between geometry levels: the staged material schedule, the fitted lighting
+and the choice of light-transport effects (the rules: ``Appearance``)."""
 
 from __future__ import annotations
 
@@ -22,10 +9,10 @@ import numpy as np
 
 from ..capture.model import Capture
 from ..errors import InputError
-from ..lighting.estimate import FILENAME as ESTIMATED_MAP
-from ..lighting.estimate import EstimatedEnvironment
+from ..lighting.estimated_map import FILENAME as ESTIMATED_MAP
+from ..lighting.estimated_map import EstimatedEnvironment
 from ..lighting.flash import Flash
-from ..lighting.setup import ESTIMATED, MAP_FRAME
+from ..lighting.modes import ESTIMATED, MAP_FRAME
 from ..material import factory
 from ..material.driver import MaterialDriver
 from ..material.export import write_glb
@@ -44,6 +31,22 @@ def _emitters(capture: Capture) -> list[str]:
 
 
 class Appearance:
+    """A run's appearance: the material and its schedule, the fitted lighting, the effects.
+
+    - ``--material staged``: mesh-colors material (backend.material) run by its schedule, one
+      stage after every geometry level and to the end once geometry has converged; re-voted
+      labels and a neutral restart after every re-mesh; ``result.glb`` at the end.
+    - ``--effects auto`` (default): backend.render.effects measures, on renders of the current
+      estimate, which effects matter and picks the integrator, depth, shadow gradients and the
+      specular lobe; re-checked after every re-mesh and when materials become spatially varying,
+      and after every geometry level while the lobe is off (turned on, it restarts from neutral
+      values and its constants are fitted).
+      ``all`` or a list forces them. Each decision is an ``effects`` event.
+    - A fitted lighting (``--lighting estimate``/``flash``) gets constant-material cycles on the
+      initial mesh before any geometry step (``light_first``), and restarts with the material
+      once geometry has converged, to be fitted again on the final surface (``finalise``).
+    """
+
     def __init__(self, capture: Capture, config, emit):
         self.capture, self.config, self.emit = capture, config, emit
         self.measure, self.overrides, self.driver = self.check(capture, config)
@@ -119,16 +122,6 @@ class Appearance:
         """The saved material of a resumed run, of the model this run's --material asks for."""
         return factory.load(path, factory.kind_for(self.config.material), folder)
 
-    # -- the schedule's share of a time budget --------------------------------------------------
-    def geometry_reserve(self) -> float:
-        """The share of a time budget the geometry levels leave to the material stages that
-        run to convergence on the final geometry (staged materials only)."""
-        return self.driver.reserve if self.driver is not None else 0.0
-
-    def polish_reserve(self, last_cycle_seconds: float | None, budget_s: float | None) -> float:
-        """The share polish rounds leave to what follows them (MaterialDriver.polish_share)."""
-        return 0.0 if self.driver is None else self.driver.polish_share(last_cycle_seconds, budget_s)
-
     @property
     def staged(self) -> bool:
         """Whether a material schedule runs (and polish rounds with it)."""
@@ -163,7 +156,7 @@ class Appearance:
             return None
         if self.driver.stage == "specular" and self.decision is not None and not self.decision.specular:
             # diffuse-only, re-checked on entering the stage: no specular lobe to texture
-            self.driver.skip_rest()
+            self.driver.schedule.stage = "done"
             return None
         start = time.perf_counter()
         stage_before = self.driver.stage
@@ -230,12 +223,12 @@ class Appearance:
         """Too little time is left for the current stage and the last one: the last stage
         (which fits every channel) runs next."""
         if self.last_stage_due():
-            self.driver.skip_to(self._last_stage())
+            self.driver.schedule.skip_to(self._last_stage())
 
     def refine_material(self) -> None:
         """The surface moved under the finished material: its last stage runs again."""
         if self.driver is not None:
-            self.driver.refine(self._last_stage())
+            self.driver.schedule.refine(self._last_stage())
 
     def settle(self, mesh, material, views, level: int) -> None:
         """The run's end: a specular texture that the views left out of its fit do not support
@@ -344,6 +337,13 @@ class Appearance:
             return self.costs
 
         return probe
+
+    def level_cycle(self, mesh, material, views, level: int) -> dict | None:
+        """After geometry level ``level``: the effects re-checked while the lobe is off
+        (``recheck``), then one stage of the material schedule on the level's ``views``;
+        the cycle's result, or None when none ran."""
+        self.recheck(mesh, material, views, level)
+        return self.material_cycle(mesh, material, views, level)
 
     def recheck(self, mesh, material, views, level: int) -> None:
         """After a geometry level, while the lobe is off: measure again. A coarse start can

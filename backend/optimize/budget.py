@@ -1,5 +1,6 @@
-"""``Budget``: the run's clock and every limit on it (time budget, iteration cap, the shares
-of the time held back for the material stages and for what follows polish rounds)."""
+"""``Budget``: the run's clock and every limit on it: the time budget, the iteration cap, and
+the shares of the time held back for the material stages on the final geometry and for what
+follows the polish rounds (staged materials only)."""
 
 from __future__ import annotations
 
@@ -8,16 +9,34 @@ from contextlib import contextmanager
 
 from .records import RunState
 
+# shares of a time budget: the geometry levels leave GEOMETRY_RESERVE to the final material
+# stages and polish rounds (enough for one polish round); polish rounds leave POLISH_RESERVE
+# to what follows them until a cycle on the final mesh has been timed, then POLISH_RESERVE_CYCLES
+# of that cycle's length (the refinement cycle, the specular check and the outputs)
+GEOMETRY_RESERVE = 0.4
+POLISH_RESERVE = 0.05
+POLISH_RESERVE_CYCLES = 1.75
+
+
+def polish_share(last_cycle_seconds: float | None, budget_s: float | None) -> float:
+    """The share of a time budget of ``budget_s`` that polish rounds leave to what follows
+    them: ``POLISH_RESERVE_CYCLES`` x ``last_cycle_seconds`` (the last material cycle on the
+    final mesh) / ``budget_s``, or ``POLISH_RESERVE`` before a cycle has been timed."""
+    if not (budget_s and last_cycle_seconds is not None):
+        return POLISH_RESERVE
+    return POLISH_RESERVE_CYCLES * last_cycle_seconds / budget_s
+
 
 class Budget:
     """The clock: seconds since the start, plus those of the runs this one resumes, less the
-    time spent on tracking metrics (not charged to the budget)."""
+    time spent on tracking metrics (not charged to the budget). ``staged``: whether a material
+    schedule runs (the reserves apply only then)."""
 
-    def __init__(self, config, appearance, state: RunState):
-        self.config, self.appearance, self.state = config, appearance, state
+    def __init__(self, config, state: RunState, staged: bool):
+        self.config, self.state, self.staged = config, state, staged
         self.t0 = time.perf_counter()
         self.excluded = 0.0
-        self.remaining = None  # optimize/remaining.Remaining, once the run has a plan
+        self.remaining = None  # planning.remaining.Remaining, once the run has a plan
 
     def elapsed(self) -> float:
         return self.state.seconds_before + time.perf_counter() - self.t0 - self.excluded
@@ -33,7 +52,7 @@ class Budget:
 
     def fraction(self) -> float:
         """The share of the run done, for the progress events' ETA: elapsed / (elapsed + the time
-        left) once the run has a plan (optimize/remaining.py), else from its steps or budget."""
+        left) once the run has a plan (``remaining``), else from its steps or budget."""
         c, s = self.config, self.state
         elapsed = self.elapsed()
         left = None if self.remaining is None else self.remaining.seconds(elapsed)
@@ -65,10 +84,12 @@ class Budget:
 
     def geometry_reserve(self) -> float:
         """The share the geometry levels leave to the material stages on the final geometry."""
-        return self.appearance.geometry_reserve()
+        return GEOMETRY_RESERVE if self.staged else 0.0
 
     def polish_reserve(self) -> float:
-        """The share polish rounds leave to one material cycle, the specular check and the
-        outputs, measured on the last material cycle on the final mesh once there is one."""
+        """The share polish rounds leave to what follows them (``polish_share``), measured on the
+        last material cycle on the final mesh once there is one."""
+        if not self.staged:
+            return 0.0
         last = self.state.levels[-1].last_cycle_seconds if self.state.levels else None
-        return self.appearance.polish_reserve(last, self.config.time_budget_s)
+        return polish_share(last, self.config.time_budget_s)

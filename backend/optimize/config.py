@@ -17,7 +17,7 @@ class ReconstructConfig:
     material: str = "auto"  # auto (constant, estimated), staged (mesh colors schedule) or known:R,G,B:SPEC:ROUGH
     effects: str = "auto"  # light-transport effects: auto (measured), all, or a list (see render/effects.py)
     # captured (the capture's lights) or estimate (an environment map fitted with the material,
-    # backend.lighting.estimate); the command resolves its default (backend.lighting.setup)
+    # backend.lighting.estimated_map); the command resolves its default (backend.lighting.modes)
     lighting: str = "captured"
     initial_faces: int = 5000  # face count of the initial mesh; the budget D starts at twice this
     max_faces: int = 250_000  # refinement stops once the budget would exceed this
@@ -54,7 +54,7 @@ class ReconstructConfig:
     # a fitted lighting and the material restart and are fitted again on the final surface, when
     # this share of a time budget is left (see Appearance.finalise); None: never
     relight_reserve: float | None = 0.2
-    # convergence (see backend.optimize.schedule)
+    # convergence (see backend.optimize.convergence)
     eval_every: int = 10  # steps between validation losses
     plateau_tolerance: float = 0.005
     patience: int = 3
@@ -66,7 +66,7 @@ class ReconstructConfig:
     level_tolerance: float = 0.003
     min_levels: int = 1  # levels run before the level_tolerance test may end refinement
     # with --material staged: geometry rounds at the final face count under the fitted material
-    # (see Reconstruction._polish), while a round lowers the validation loss by polish_tolerance
+    # (see optimize.run.Reconstruction._polish), while a round lowers the validation loss by polish_tolerance
     polish_rounds: int = 4
     polish_tolerance: float = 0.01
     # a polish round keeps its step and ends when the mean of the last polish_window validation
@@ -85,7 +85,7 @@ class ReconstructConfig:
     snapshot_every_s: float = 1.0  # the add-on streams an update every second...
     snapshot_share: float = 0.05  # ...or less often, so that writing snapshots takes at most this share of the time
     track_metrics: bool = False  # metrics after every level (time excluded from the budget)
-    # held-out PSNR against run time (backend.optimize.accuracy; time excluded from the budget):
+    # held-out PSNR against run time (backend.planning.tracking; time excluded from the budget):
     # the capture's ground-truth held-out views, else every held_out_every-th view, not fitted
     track_accuracy: bool = False
     held_out_every: int = 8

@@ -1,32 +1,5 @@
-"""What an optional light-transport effect costs per geometry step, and what it changes in
-the step: a paired probe that the effects decision weighs (accuracy per second).
-
-Candidates are the effects whose cost grows the geometry step: shadow (indirect-silhouette)
-gradients, and one more bounce than the decision keeps. For each, on a few probe views, the
-probe takes geometry gradients with the current decision (``base``) and with the effect
-added, in the optimiser's smoothed space g~ = (I + lambda L)^-1 dL/dv (the direction a
-Large Steps update follows), at K seeds (``CostRule.seeds``, 3):
-
-    d_k     = g~_e(s_k) - g~_base(s_k)              the effect's term, seeds paired
-    |E d|^2 ~ mean over k < l of d_k . d_l           unbiased: different seeds' noise is independent
-    share_e = sqrt(max(|E d|^2, 0)) / |mean_k g~_e(s_k)|
-
-and its standard error from the spread of the pair products gives a z-score: a term that does
-not stand out of its own noise (z < ``z_score``) does not pay, whatever its estimate.
-
-``share_e`` is the bias a run without the effect keeps in its steps, relative to the step: the
-optimiser settles where its biased gradient vanishes, so the shape stays off by about that
-share of what is left to fit. The cost is the median time of a step with and without the
-effect (kernels compiled by an untimed step first); ``ratio_e = seconds_e / seconds_base``.
-
-Shadow gradients are charged at most ``shadow_samples.RATIO``: each level cuts their samples
-until a step costs no more (:mod:`backend.optimize.shadow_samples`), and the share is that of
-an unbiased term whatever its sample count.
-
-Selection: the effect is on when z >= ``z_score`` and ``share_e >= value * (ratio_e - 1)``: the bias it removes
-must be worth the share of steps it costs (``value`` = 0.1: a step 1.3x as long must remove 3 %
-of the gradient; a free effect is on as soon as its term stands out of the noise,
-``share_e >= min_share``)."""
+"""What an optional light-transport effect costs per geometry step and what it changes in
+the step: the paired probe the effects decision weighs (the maths: ``measure``)."""
 
 from __future__ import annotations
 
@@ -44,7 +17,7 @@ CAPS = {"shadows": SHADOW_RATIO}
 
 @dataclass
 class EffectCost:
-    """One candidate's measured cost and need (see the module docstring)."""
+    """One candidate's measured cost and need (see ``measure``)."""
 
     effect: str
     seconds: float  # median geometry step with the effect
@@ -92,7 +65,35 @@ def measure(gradient, candidates: dict[str, object], base, faces: np.ndarray, n_
 
     ``gradient(config, seed) -> dL/dv (V, 3)`` takes one geometry step's gradient (the probe
     views, the configuration's render settings); ``candidates`` maps an effect name to its
-    configuration. Returns {effect: EffectCost} with ``pays`` set by ``rule``."""
+    configuration. Returns {effect: EffectCost} with ``pays`` set by ``rule``.
+
+    Candidates are the effects whose cost grows the geometry step: shadow (indirect-silhouette)
+    gradients, and one more bounce than the decision keeps. For each, on a few probe views, the
+    probe takes geometry gradients with the current decision (``base``) and with the effect
+    added, in the optimiser's smoothed space g~ = (I + lambda L)^-1 dL/dv (the direction a
+    Large Steps update follows), at K seeds (``CostRule.seeds``, 3):
+
+        d_k     = g~_e(s_k) - g~_base(s_k)              the effect's term, seeds paired
+        |E d|^2 ~ mean over k < l of d_k . d_l           unbiased: different seeds' noise is independent
+        share_e = sqrt(max(|E d|^2, 0)) / |mean_k g~_e(s_k)|
+
+    and its standard error from the spread of the pair products gives a z-score: a term that does
+    not stand out of its own noise (z < ``z_score``) does not pay, whatever its estimate.
+
+    ``share_e`` is the bias a run without the effect keeps in its steps, relative to the step: the
+    optimiser settles where its biased gradient vanishes, so the shape stays off by about that
+    share of what is left to fit. The cost is the median time of a step with and without the
+    effect (kernels compiled by an untimed step first); ``ratio_e = seconds_e / seconds_base``.
+
+    Shadow gradients are charged at most ``shadow_samples.RATIO``: each level cuts their samples
+    until a step costs no more (:mod:`backend.optimize.shadow_samples`), and the share is that of
+    an unbiased term whatever its sample count.
+
+    Selection: the effect is on when z >= ``z_score`` and ``share_e >= value * (ratio_e - 1)``: the bias it removes
+    must be worth the share of steps it costs (``value`` = 0.1: a step 1.3x as long must remove 3 %
+    of the gradient; a free effect is on as soon as its term stands out of the noise,
+    ``share_e >= min_share``).
+    """
     rule = rule or CostRule()
     system = LaplacianSystem(faces, n_vertices, lambda_)
 
@@ -117,7 +118,7 @@ def measure(gradient, candidates: dict[str, object], base, faces: np.ndarray, n_
 
 
 def term_share(with_effect: list[np.ndarray], without: list[np.ndarray]) -> tuple[float, float, float]:
-    """(share, noise, z) of the paired differences (see the module docstring)."""
+    """(share, noise, z) of the paired differences (see ``measure``)."""
     d = [a - b for a, b in zip(with_effect, without)]
     norm = float(np.linalg.norm(np.mean(with_effect, axis=0))) or 1e-30
     products = np.array([float(np.sum(d[k] * d[l])) for k in range(len(d)) for l in range(k + 1, len(d))])

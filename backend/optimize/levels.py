@@ -1,43 +1,86 @@
-"""``LevelRun`` and ``PolishRun``: one run of vertex steps at one image size.
-
-A level optimises the vertices (Laplacian-preconditioned steps, several views per step,
-fixed seeds) with joint material steps, halves its step when the validation loss plateaus
-and backtracks to its best surface when the loss rises by ``backtrack``; after a backtrack
-the material steps stop first.
-
-A polish round starts from a converged surface under the finished material, which stays
-frozen (noisy joint steps would blur the fitted textures). There single validation losses
-swing by several per cent between evaluations while held-out views keep improving, so a
-round grows into its step over ``polish_warmup`` steps and keeps it; it backtracks only when
-a loss is ``polish_divergence`` above the best, and ends when the mean of the last
-``polish_window`` losses stops setting new bests."""
+"""``LevelRun`` and ``PolishRun``: one run of vertex steps at one image size, on a ``Fit``
+(the run's inputs and state); the rules of each: their class docstrings."""
 
 from __future__ import annotations
 
 import math
 import time
+from collections.abc import Callable
+from dataclasses import dataclass
 
 import numpy as np
 
+from ..capture.model import Capture
 from ..geometry.mesh import Mesh
 from ..geometry.topology import enclosed, mean_edge_length
+from ..render.scene import RenderSettings
 from .appearance import lit_environment
-from .objective import seed_for
-from .records import LevelRecord
-from .schedule import Plateau, level_size
+from .budget import Budget
+from .config import ReconstructConfig
+from .convergence import Plateau, level_size
+from .objective import Objective, seed_for
+from .progress import Progress
+from .records import LevelRecord, RunState
 from .shadow_samples import ShadowSamples
 from .steps import Adam, VertexOptimizer, clip_outliers, finite
-from .views import validation_views
+from .views import ViewSet, validation_views
+
+
+@dataclass
+class Fit:
+    """What a level, a polish round and a transition work on; ``state`` and ``material``
+    change in place."""
+
+    capture: Capture
+    config: ReconstructConfig
+    state: RunState
+    viewset: ViewSet
+    material: object  # the run's material model
+    budget: Budget
+    stiffness: object  # optimize.stiffness.choose's Stiffness
+    settings: RenderSettings  # the geometry steps' render settings
+    emit: Callable
+    progress: Progress
+    check_stop: Callable[[], None]  # raises StopRequested when a stop was asked for
+    # checkpoint(vertices, loss, validation loss): the run's snapshot and held-out score when due
+    checkpoint: Callable[[np.ndarray, float, float | None], None]
+    objective_factory: Callable = Objective
+
+
+def latents(material) -> dict[str, np.ndarray]:
+    """A copy of the material's parameters (float64)."""
+    return {n: np.array(z, np.float64) for n, z in material.parameters().items()}
+
+
+def skip(state: RunState, emit, why: str) -> None:
+    """Count a skipped step and warn of it."""
+    state.skipped += 1
+    emit("warning", message=f"step {state.iteration} skipped: {why} ({state.skipped} so far)")
 
 
 class LevelRun:
-    """One geometry level of the run ``run`` (optimize.run.Reconstruction); call it once."""
+    """One geometry level on ``fit``; call it once for its LevelRecord (appended to
+    ``fit.state.levels``); ``validation`` is then its last validation loss.
+
+    A level optimises the vertices (Laplacian-preconditioned steps, several views per step,
+    fixed seeds) with joint material steps, halves its step when the validation loss plateaus
+    and backtracks to its best surface when the loss rises by ``backtrack``; after a backtrack
+    the material steps stop first.
+
+    A polish round starts from a converged surface under the finished material, which stays
+    frozen (noisy joint steps would blur the fitted textures). There single validation losses
+    swing by several per cent between evaluations while held-out views keep improving, so a
+    round grows into its step over ``polish_warmup`` steps and keeps it; it backtracks only when
+    a loss is ``polish_divergence`` above the best, and ends when the mean of the last
+    ``polish_window`` losses stops setting new bests.
+    """
 
     stage = "geometry"
     material_steps = True  # joint material steps (until the first backtrack)
 
-    def __init__(self, run):
-        self.run, self.config, self.state = run, run.config, run.state
+    def __init__(self, fit: Fit):
+        self.fit, self.config, self.state = fit, fit.config, fit.state
+        self.validation: float | None = None
 
     # -- what differs between levels and polish rounds ---------------------------------------------
     def patience(self) -> int:
@@ -47,13 +90,13 @@ class LevelRun:
         return self.state.level_limit or self.config.level_iterations
 
     def reserve(self) -> float:
-        return self.run.budget.geometry_reserve()
+        return self.fit.budget.geometry_reserve()
 
     def warmup(self) -> int:
         """Material-only steps that open level 0 when the material is estimated: a wrong
         material makes the geometry compensate (a too-dark material inflates the mesh
         toward the lights), so the material gets a head start."""
-        if self.state.level != 0 or not self.run.material.trainable:
+        if self.state.level != 0 or not self.fit.material.trainable:
             return 0
         cap = self.config.iterations  # a capped run keeps most of its steps for geometry
         return self.config.material_warmup if cap is None else min(self.config.material_warmup, cap // 3)
@@ -68,10 +111,10 @@ class LevelRun:
         """Act on a validation loss; returns (vertices, whether the run ends)."""
         c, opt, plateau = self.config, self.opt, self.plateau
         if plateau.update(val):
-            self.best = (vertices.copy(), self.run.latents())
+            self.best = (vertices.copy(), latents(self.fit.material))
         elif val > plateau.best * (1 + c.backtrack) or not math.isfinite(val):
             vertices = self.best[0].copy()  # backtrack: the step was too long
-            self.run.material.load_parameters(self.best[1])
+            self.fit.material.load_parameters(self.best[1])
             opt.set_vertices(vertices)
             opt.reset_moments()
             if self.joint and geometry:
@@ -91,18 +134,18 @@ class LevelRun:
 
     # -- the steps ------------------------------------------------------------------------------
     def __call__(self) -> LevelRecord:
-        run, c, s = self.run, self.config, self.state
+        fit, c, s = self.fit, self.config, self.state
         start = time.perf_counter()
         size = level_size(s.level, c.coarse_size, c.max_size)
-        views = run.viewset.at(size)
+        views = fit.viewset.at(size)
         centres = np.array([v.camera.centre for v in views])
-        environment = lit_environment(run.capture, run.material)
-        settings = run.settings()
-        objective = run.objective_factory(s.mesh, run.material, views, settings, environment, tone=c.tone)
+        environment = lit_environment(fit.capture, fit.material)
+        settings = fit.settings
+        objective = fit.objective_factory(s.mesh, fit.material, views, settings, environment, tone=c.tone)
         # shadow-gradient samples this level affords: timed on its own first steps
         shadows = ShadowSamples(settings.sppi if hasattr(objective, "set_shadow_samples") else 0)
         self.lr0 = c.step * mean_edge_length(s.mesh)
-        self.opt = opt = VertexOptimizer(s.mesh.vertices, s.mesh.faces, run.stiffness.lambda_, self.lr0)
+        self.opt = opt = VertexOptimizer(s.mesh.vertices, s.mesh.faces, fit.stiffness.lambda_, self.lr0)
         material_opt = Adam(c.material_lr)
         val_ids = validation_views(len(views), c.validation_views)
         val_seed = seed_for(c.seed, 10_000_019, 0)
@@ -110,12 +153,12 @@ class LevelRun:
         self.full, self.recent = self.lr0, []  # a polish round's step and its validation losses
         limit = self.limit()
         vertices = s.mesh.vertices.copy()
-        run.validation = objective.validation_loss(vertices, val_ids, val_seed, c.validation_spp)
-        plateau.update(run.validation)
-        run.emit("stage", stage=self.stage, level=s.level, faces=s.mesh.n_faces, iteration=s.iteration,
-                 loss=plateau.best, size=size, seconds=round(run.budget.elapsed(), 3),
+        self.validation = objective.validation_loss(vertices, val_ids, val_seed, c.validation_spp)
+        plateau.update(self.validation)
+        fit.emit("stage", stage=self.stage, level=s.level, faces=s.mesh.n_faces, iteration=s.iteration,
+                 loss=plateau.best, size=size, seconds=round(fit.budget.elapsed(), 3),
                  environment_strength=None if environment is None else environment.strength)
-        self.best = (vertices.copy(), run.latents())
+        self.best = (vertices.copy(), latents(fit.material))
         first_loss = plateau.best
         rng = np.random.default_rng([c.seed, s.level])
         order: list[int] = []
@@ -125,8 +168,8 @@ class LevelRun:
         self.shadows = None
         try:
             while s.level_iteration < limit:
-                run.folder.check_stop()
-                if run.budget.out(self.reserve()):
+                fit.check_stop()
+                if fit.budget.out(self.reserve()):
                     break
                 ids = []
                 while len(ids) < min(c.views_per_step, len(views)):
@@ -144,18 +187,18 @@ class LevelRun:
                 if sppi is not None and shadows.record(sppi, time.perf_counter() - step_start):
                     objective.set_shadow_samples(shadows.chosen)
                     self.shadows = shadows.to_json()
-                    run.emit("shadow_samples", stage=self.stage, level=s.level, faces=s.mesh.n_faces, size=size,
+                    fit.emit("shadow_samples", stage=self.stage, level=s.level, faces=s.mesh.n_faces, size=size,
                              **self.shadows)
                 s.iteration += 1
                 s.level_iteration += 1
                 if not (math.isfinite(loss) and finite(*([grad] if geometry else []), *mgrads.values())):
-                    run.skip("non-finite loss or gradient")
+                    skip(s, fit.emit, "non-finite loss or gradient")
                     continue
                 if geometry:
-                    new_vertices = opt.step(clip_outliers(grad, run.stiffness.clip))
+                    new_vertices = opt.step(clip_outliers(grad, fit.stiffness.clip))
                     if not finite(new_vertices):
                         opt.set_vertices(vertices)
-                        run.skip("non-finite vertex positions after a step")
+                        skip(s, fit.emit, "non-finite vertex positions after a step")
                         continue
                     if enclosed(Mesh(new_vertices, s.mesh.faces), centres).any():
                         # no silhouette left to render from inside: the step was too long
@@ -163,44 +206,38 @@ class LevelRun:
                         opt.reset_moments()
                         opt.lr *= 0.5
                         self.full *= 0.5
-                        run.skip("the step put a camera inside the mesh (step halved)")
+                        skip(s, fit.emit, "the step put a camera inside the mesh (step halved)")
                         continue
                     vertices = new_vertices
                 if mgrads:
-                    latents = {n: z for n, z in run.latents().items() if n in mgrads}  # the trainable ones
-                    run.material.load_parameters(material_opt.step(latents, mgrads))
-                run.progress.update(stage=self.stage, level=s.level, iteration=s.level_iteration,
+                    trainable = {n: z for n, z in latents(fit.material).items() if n in mgrads}
+                    fit.material.load_parameters(material_opt.step(trainable, mgrads))
+                fit.progress.update(stage=self.stage, level=s.level, iteration=s.level_iteration,
                                     iterations=limit, loss=loss, faces=s.mesh.n_faces)
                 if s.level_iteration % c.eval_every == 0:
-                    val = run.validation = objective.validation_loss(vertices, val_ids, val_seed, c.validation_spp)
+                    val = self.validation = objective.validation_loss(vertices, val_ids, val_seed, c.validation_spp)
                     vertices, done = self.evaluate(val, vertices, geometry, warmup)
                     if done:
                         break
-                if time.perf_counter() - run.last_snapshot >= run.snapshot_interval():
-                    s.mesh = Mesh(vertices, s.mesh.faces)
-                    run.snapshot(loss=loss)
-                if run.accuracy.due():  # held-out views scored every accuracy_every_s (--track-accuracy)
-                    run.track("every", Mesh(vertices, s.mesh.faces))
+                fit.checkpoint(vertices, loss, self.validation)
         finally:
             if shadows.chosen is not None:  # what the kept count cost over all of the level's steps
                 self.shadows = shadows.to_json()
             # keep the best surface found so far, also when cancelled
             s.mesh = Mesh(self.best[0], s.mesh.faces)
-            run.material.load_parameters(self.best[1])
+            fit.material.load_parameters(self.best[1])
             s.timed(self.stage, start)
         record = LevelRecord(level=s.level, size=size, faces=s.mesh.n_faces, iterations=s.level_iteration,
                              loss_start=first_loss, loss=plateau.best, step_final=self.step_final(),
                              material_frozen_at=self.frozen_at, seconds=round(time.perf_counter() - start, 3),
-                             elapsed=round(run.budget.elapsed(), 3), polish=not self.material_steps,
+                             elapsed=round(fit.budget.elapsed(), 3), polish=not self.material_steps,
                              shadow_samples=self.shadows)
-        if run.truth is not None and c.track_metrics:
-            record.metrics = run.metrics(s.mesh)
         s.levels.append(record)
         return record
 
 
 class PolishRun(LevelRun):
-    """One polish round: the material frozen, a steady step (see the module's docstring)."""
+    """One polish round: the material frozen, a steady step (see ``LevelRun``)."""
 
     stage = "polish"
     material_steps = False
@@ -212,7 +249,7 @@ class PolishRun(LevelRun):
         return self.config.level_iterations * self.config.polish_length
 
     def reserve(self) -> float:
-        return self.run.budget.polish_reserve()
+        return self.fit.budget.polish_reserve()
 
     def before_step(self) -> None:
         self.opt.lr = self.full * min(1.0, (self.state.level_iteration + 1) / max(self.config.polish_warmup, 1))

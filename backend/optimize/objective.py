@@ -1,13 +1,5 @@
-"""The objective: masked squared error between path-traced renders and the target views.
-
-With emitters hidden, a render is black outside the object, so the squared error against
-mask x image over the whole frame is the paper's masked loss (silhouette errors included).
-Projective integrators give the silhouette gradients.
-
-By default both images pass through the tone curve t(x) = log(1 + x / s) first (s = the
-mean object radiance of the targets). Plain MSE (``tone="linear"``, the paper's loss) lets
-specular highlights dominate: its per-vertex gradient is heavy-tailed (a few vertices carry
-most of its energy) and gradients of two seeds barely agree; the log curve evens both out."""
+"""The objective: masked squared error between path-traced renders and the target views,
+through a log tone curve (the reasons: ``Objective``)."""
 
 from __future__ import annotations
 
@@ -44,7 +36,17 @@ def tone_scale(views: list[View]) -> float:
 
 
 class Objective:
-    """Loss and gradients for one mesh connectivity at one image size."""
+    """Loss and gradients for one mesh connectivity at one image size.
+
+    With emitters hidden, a render is black outside the object, so the squared error against
+    mask x image over the whole frame is the paper's masked loss (silhouette errors included).
+    Projective integrators give the silhouette gradients.
+
+    By default both images pass through the tone curve t(x) = log(1 + x / s) first (s = the
+    mean object radiance of the targets). Plain MSE (``tone="linear"``, the paper's loss) lets
+    specular highlights dominate: its per-vertex gradient is heavy-tailed (a few vertices carry
+    most of its energy) and gradients of two seeds barely agree; the log curve evens both out.
+    """
 
     def __init__(self, mesh: Mesh, material, views: list[View], settings: RenderSettings,
                  environment=None, env_pixels: np.ndarray | None = None, tone: str = "log"):

@@ -6,6 +6,38 @@ import threading
 import time
 
 
+class Paced:
+    """An emitter that first shows every event to the live estimate of the time left
+    (``budget.remaining``, a planning.remaining.Remaining once the plan has set it), on the
+    budget's clock. A ``progress`` event sent straight to the emitter (a material stage's, the
+    lighting's) goes through ``progress`` instead, so that it carries the fraction and time
+    left, and the heartbeat repeats its stage, not the last level's. ``budget`` and
+    ``progress`` are set by the run once they exist; an estimate that fails is dropped with a
+    warning, never stopping the run."""
+
+    def __init__(self, inner):
+        self.inner = inner
+        self.budget = None  # the run's Budget
+        self.progress: Progress | None = None  # the run's Progress while it runs
+
+    def __call__(self, event: str, **fields) -> dict:
+        if event == "progress" and "fraction" not in fields and self.progress is not None:
+            self.progress.restart(**fields)
+            return fields
+        budget = self.budget
+        if budget is not None and budget.remaining is not None:
+            try:
+                budget.remaining.observe(event, fields, budget.elapsed())
+            except Exception as err:  # an estimate that fails must not stop the run it estimates
+                budget.remaining = None
+                self.inner("warning", message=f"no estimate of the time left from here on ({type(err).__name__}: {err})")
+        return self.inner(event, **fields)
+
+    @property
+    def start(self) -> float:
+        return self.inner.start
+
+
 class LockedEmitter:
     """Serialises events from the run loop and the heartbeat thread."""
 

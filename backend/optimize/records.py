@@ -73,8 +73,8 @@ class RunState:
     seconds_before: float = 0.0  # run time of the runs this one resumes
     appearance: dict | None = None
     material_kind: str | None = None
-    accuracy: dict | None = None  # the held-out series so far (optimize/accuracy.py; --track-accuracy)
-    level_limit: int | None = None  # steps that end a level, from the run's plan (optimize/plan.py)
+    accuracy: dict | None = None  # the held-out series so far (planning/tracking.py; --track-accuracy)
+    level_limit: int | None = None  # steps that end a level, from the run's plan (planning/time_plan.py)
 
     def timed(self, name: str, start: float) -> None:
         """Charge the time since ``start`` (perf_counter) to ``timings[name]``."""

@@ -1,25 +1,6 @@
-"""The relight: once geometry has converged, a fitted lighting (``--lighting estimate``, ``rig``
-or ``flash``) and the material go back to their initial values and are fitted again on the
-final surface, constants first, then the final stages.
-
-Fitted along with a surface that moves through its levels and re-meshes, the albedo takes up
-shading that the intermediate surfaces and lightings got wrong, and the lighting drifts to
-match it: the fitted views still match, but the split of light and albedo does not carry to
-another light. Fitted afresh on the final surface it does
-(docs/notes/2026-11-28-relight.md).
-
-A fresh fit can also fail where the lighting is hard to separate from the material (a map on
-the camera rig, where every view's highlights face the camera: ``Appearance.finalise`` does not
-relight one, since every fresh fit under it lost the views), so the relight is judged once
-the final stages end: with the full-view loss L (``Appearance.full_loss``, the views at full
-size) of the material and lighting before it, L_before, and after it, L_after, the relit
-ones are kept when
-
-    L_after <= TOLERANCE x L_before
-
-and the earlier ones are put back otherwise. The tolerance admits the small loss a
-relight costs on the views it fits (the albedo no longer paints shading in) while refusing a
-fit that lost the views."""
+"""The relight: once geometry has converged, a fitted lighting and the material go back to
+their initial values and are fitted again on the final surface, kept only if they render
+the views as well (the rule: ``Relight``)."""
 
 from __future__ import annotations
 
@@ -42,7 +23,27 @@ def _put_lighting(lighting, values) -> None:
 
 
 class Relight:
-    """One run's relight: ``start`` it, then ``judge`` it once the final stages end."""
+    """One run's relight: ``start`` it, then ``judge`` it once the final stages end.
+
+    Fitted along with a surface that moves through its levels and re-meshes, the albedo takes up
+    shading that the intermediate surfaces and lightings got wrong, and the lighting drifts to
+    match it: the fitted views still match, but the split of light and albedo does not carry to
+    another light. Fitted afresh on the final surface it does
+    (docs/notes/2026-11-28-relight.md).
+
+    A fresh fit can also fail where the lighting is hard to separate from the material (a map on
+    the camera rig, where every view's highlights face the camera: ``Appearance.finalise`` does not
+    relight one, since every fresh fit under it lost the views), so the relight is judged once
+    the final stages end: with the full-view loss L (``Appearance.full_loss``, the views at full
+    size) of the material and lighting before it, L_before, and after it, L_after, the relit
+    ones are kept when
+
+        L_after <= TOLERANCE x L_before
+
+    and the earlier ones are put back otherwise. The tolerance admits the small loss a
+    relight costs on the views it fits (the albedo no longer paints shading in) while refusing a
+    fit that lost the views.
+    """
 
     def __init__(self):
         self.saved = None  # (material values, lighting values, L_before) while being judged

@@ -1,43 +1,31 @@
-"""``reconstruct()``: the reconstruction library function the ``reconstruct`` command, the
-benchmarks and the stability suite call.
-
-A run initialises a mesh and a material, then goes through its phases: geometry levels
-(``LevelRun``) alternating with material cycles and transitions (re-mesh or subdivide) until
-a level stops improving, the budget or the iteration cap runs out or a stop is requested;
-the material stages to the end on the final geometry; polish rounds (``PolishRun``), each
-followed by a material refinement, while they improve. ``RunState`` holds where it stands
-(for --resume and report.json), ``Budget`` the clock and its limits."""
+"""``reconstruct()``: the one entry point of a reconstruction (the ``reconstruct`` command's
+job, the benchmarks' children and the stability suite all call it). A run initialises a mesh
+and a material, then goes through ``Reconstruction.PHASES`` in order; ``RunState`` says where
+it stands (for --resume and report.json), ``Budget`` holds the clock and its limits."""
 
 from __future__ import annotations
 
 import dataclasses
-import json
 import time
-from contextlib import contextmanager
 from pathlib import Path
 
-import numpy as np
-
-from .. import fsio
+from .. import fsio, interrupt
 from ..capture.model import Capture
-from ..errors import InputError
 from ..geometry.init import check_lights_outside, initial_mesh
 from ..geometry.mesh import Mesh, load_mesh, save_mesh
 from ..geometry.simplify import FaceBudget
 from ..geometry.topology import inspect
 from ..metrics import geometry_metrics
 from ..render.scene import RenderSettings
-from . import accuracy
 from .appearance import Appearance
 from .budget import Budget
 from .config import ReconstructConfig
-from .levels import LevelRun, PolishRun
+from .convergence import level_size, levels_end, next_level
+from .levels import Fit, LevelRun, PolishRun
 from .objective import Objective
-from .progress import LockedEmitter, Progress, StopOnProgress
-from .remaining import Paced, Remaining, resumed
+from .progress import LockedEmitter, Paced, Progress, StopOnProgress
 from .records import LevelRecord, RunState
-from .run_folder import RunFolder, StopRequested
-from .schedule import keeps_improving, level_size
+from .run_folder import Result, RunFolder, StopRequested, snapshot_interval
 from .stiffness import choose as choose_stiffness
 from .transition import transition
 from .views import ViewSet
@@ -47,107 +35,115 @@ from .views import ViewSet
 LAST_STAGE_COST = 1.5
 
 
-@dataclasses.dataclass
-class Result:
-    """How a run ended: ``exit_code`` 0 (done) or 130 (cancelled), and its folder."""
-
-    exit_code: int
-    folder: Path
-
-    @property
-    def report(self) -> dict | None:
-        path = self.folder / "report.json"
-        return json.loads(path.read_text()) if self.exit_code == 0 and path.is_file() else None
-
-
 def reconstruct(capture: Capture, out: RunFolder, config: ReconstructConfig, events, *, resume: bool = False,
-                material=None, objective_factory=Objective, planner=None) -> Result:
+                material=None, objective_factory=Objective, planner=None, tracking=None,
+                remaining=None) -> Result:
     """Reconstruct ``capture`` into the run folder ``out`` (docs/protocol.md), emitting
-    ``events`` (an Emitter: ``events(name, **fields)``).
-
-    Args:
+    ``events`` (an Emitter: ``events(name, **fields)``). Args:
         resume: continue from the folder's saved state.
         material: the material model of a new run (default: the one ``config.material``
             names, through material.factory; a staged run always builds its own).
         objective_factory: builds each level's objective, called as ``Objective`` is (tests
             wrap the real one to record every step).
         planner: called as ``planner(capture, viewset, geometry_settings, material_settings,
-            initial_mesh, held)`` once a new run has decided its effects, before its first step (the
-            command times this capture's steps there: optimize/plan.py), uncharged; the
-            PresetPlan it returns paces the progress events' time left (optimize/remaining.py).
+            initial_mesh, held)`` once a new run has decided its effects, before its first
+            step, uncharged. Returns None or (the live estimate of the time left, which the
+            progress events follow: ``observe(event, fields, now)`` and ``seconds(now)`` as
+            planning.remaining.Remaining has, or None; the geometry steps per level, or None).
+        tracking: ``tracking(capture, config)`` -> (the capture to fit, its held-out accuracy
+            tracker): planning.tracking.start, which ``config.track_accuracy`` needs.
+        remaining: a resumed run's live estimate of the time left (planning.remaining.resumed).
     Raises InputError on bad input; cancellation returns exit code 130."""
-    run = Reconstruction(capture, out, config, events, material=material, resume=resume,
-                         objective_factory=objective_factory, planner=planner)
-    return Result(run.run(), out.path)
+    if tracking is None:
+        if config.track_accuracy:
+            raise ValueError("config.track_accuracy needs tracking= (backend.planning.tracking.start)")
+        tracking = lambda capture, config: (capture, Untracked())  # noqa: E731
+    run = Reconstruction(capture, out, config, events, tracking, material=material, resume=resume,
+                         objective_factory=objective_factory)
+    return Result(run.run(planner, remaining), out.path)
 
 
-@contextmanager
-def reported(emit):
-    """Errors and interruptions inside become ``error`` / ``cancelled`` events, then propagate."""
-    try:
-        yield
-    except InputError as err:
-        emit("error", message=err.line())
-        raise
-    except KeyboardInterrupt:
-        emit("cancelled", snapshot=None)
-        raise
-    except Exception as err:
-        emit("error", message=f"{type(err).__name__}: {err}")
-        raise
+class Untracked:
+    """The tracker of a run that scores no held-out views (``reconstruct`` without ``tracking``)."""
+
+    enabled, held, clock = False, None, None
+
+    def observe(self, emit):
+        return emit
+
+    def due(self) -> bool:
+        return False
+
+    def state(self) -> None:
+        return None
+
+    def restore(self, state) -> None:
+        pass
+
+    def report(self) -> None:
+        return None
 
 
 class Reconstruction:
-    """One run: its phases, snapshots and report (see ``reconstruct``)."""
+    """One run: its phases (``PHASES``), snapshots and report (see ``reconstruct``)."""
 
-    def __init__(self, capture: Capture, folder: RunFolder, config: ReconstructConfig, emit,
-                 material=None, resume: bool = False, objective_factory=Objective, planner=None):
-        capture, held = accuracy.split(capture, config)  # --track-accuracy: views held out of every fit
+    # (method, the RunState phases it runs from, the phase after it), in the order a run goes
+    # through them; a resumed run starts at its state's phase
+    PHASES = (("_levels", ("level", "transition"), "materials"),
+              ("_finish_materials", ("materials",), "polish"),
+              ("_polish", ("polish",), "polish"))
+
+    def __init__(self, capture: Capture, folder: RunFolder, config: ReconstructConfig, emit, tracking,
+                 material=None, resume: bool = False, objective_factory=Objective):
+        capture, self.accuracy = tracking(capture, config)  # --track-accuracy: views held out of every fit
         self.capture, self.folder, self.config = capture, folder, config
         self.state = RunState()
-        self.accuracy = accuracy.AccuracyTracker(held, config)
-        emit = self.accuracy.observe(StopOnProgress(Paced(emit, self), folder.check_stop,
+        self.paced = Paced(emit)
+        emit = self.accuracy.observe(StopOnProgress(self.paced, folder.check_stop,
                                                     lambda: self.state.phase != "done"))
         self.emit = LockedEmitter(emit)
-        if held.note:
-            self.emit("warning", message=held.note)
+        if self.accuracy.held is not None and self.accuracy.held.note:
+            self.emit("warning", message=self.accuracy.held.note)
         self.material = material
         self.resume = resume
         self.objective_factory = objective_factory
-        self.planner = planner
         self.viewset = ViewSet(capture, config.max_size)
         self.appearance = Appearance(capture, config, emit)
         self.appearance.start_lighting(folder.path, resume)
-        self.budget = Budget(config, self.appearance, self.state)
+        self.budget = self.paced.budget = Budget(config, self.state, staged=self.appearance.staged)
         self.accuracy.clock = self.budget.elapsed
         self.validation: float | None = None  # the last validation loss a level computed
-        self.truth = self._truth()
+        self.truth = truth_mesh(capture)
         self.last_snapshot = 0.0
         self.snapshot_seconds = 0.0  # what the last snapshot took to write
-        self.progress: Progress | None = None
         self.stiffness = None
 
-    def run(self) -> int:
-        """Run to the end; returns the exit code (0 done, 130 cancelled)."""
-        with Progress(self.emit, self.budget.fraction, self.budget.elapsed) as self.progress:
+    def run(self, planner=None, remaining=None) -> int:
+        """Run to the end (``planner``, ``remaining``: as ``reconstruct`` takes them); returns
+        the exit code (0 done, 130 cancelled)."""
+        with Progress(self.emit, self.budget.fraction, self.budget.elapsed) as self.paced.progress:
             try:
-                self._start()
+                if self.resume:
+                    self._load_state(remaining)
+                else:
+                    self._start(planner)
                 self.track("resume" if self.resume else "start")
                 self._phases()
             except (KeyboardInterrupt, StopRequested):
+                return self._cancel()
+            except Exception as err:
+                if not interrupt.is_cancel(err):
+                    raise
                 return self._cancel()
             self._finish()
         return 0
 
     # -- start -------------------------------------------------------------------------------------
-    def _start(self) -> None:
+    def _start(self, planner) -> None:
         c, s = self.config, self.state
-        if self.resume:
-            self._load_state()
-            return
         start = time.perf_counter()
         self.emit("stage", stage="init", level=0, faces=0)
-        self.progress.update(force=True, stage="init", level=0, iteration=0, iterations=0, loss=None, faces=0)
+        self.paced.progress.update(force=True, stage="init", level=0, iteration=0, iterations=0, loss=None, faces=0)
         s.mesh, kind = initial_mesh(self.capture, c.init, c.initial_faces,
                                     warn=lambda message: self.emit("warning", message=message))
         check_lights_outside(self.capture, s.mesh, kind)
@@ -156,16 +152,16 @@ class Reconstruction:
         s.material_kind = self.material.KIND
         lit = self.appearance.light_first(s.mesh, self.material, coarse)
         self.appearance.decide(s.mesh, self.material, coarse, reason="initial mesh")
-        self._choose_stiffness(coarse)
+        self.stiffness = choose_stiffness(self.config, coarse, spatially_varying=self.appearance.staged)
+        self.emit("stiffness", **self.stiffness.event())
         s.budget = FaceBudget(s.mesh.n_faces, growth=c.face_growth)
         s.timed("init", start)
-        if self.planner is not None:
+        if planner is not None:
             with self.budget.uncharged():
-                planned = self.planner(self.capture, self.viewset, self.settings(),
-                                       self.appearance.material_settings(RenderSettings.for_geometry(c)), s.mesh,
-                                       self.accuracy.held)
-            self.budget.remaining = None if planned is None else Remaining.from_plan(planned, c.time_budget_s)
-            s.level_limit = getattr(planned, "level_limit", None)
+                planned = planner(self.capture, self.viewset, self.appearance.geometry_settings(RenderSettings.for_geometry(self.config)),
+                                  self.appearance.material_settings(RenderSettings.for_geometry(c)), s.mesh,
+                                  self.accuracy.held)
+            self.budget.remaining, s.level_limit = (None, None) if planned is None else planned
         report = inspect(s.mesh)
         s.init = {"kind": kind, "faces": s.mesh.n_faces, "genus": report.genus,
                   "seconds": round(time.perf_counter() - start, 3)}
@@ -175,62 +171,77 @@ class Reconstruction:
             s.init["light_first"] = lit
         self.snapshot(loss=None)
 
-    def _load_state(self) -> None:
+    def _load_state(self, remaining) -> None:
         saved, material_path = self.folder.load_state()
         s = self.state = self.budget.state = RunState.from_json(saved)
         self.accuracy.restore(s.accuracy)
         self.material = self.appearance.load_material(material_path, self.folder.path)
         s.material_kind = self.material.KIND
-        self.budget.remaining = resumed(self.folder.events, self.config.time_budget_s)  # its plan, phases done
+        self.budget.remaining = remaining  # its plan, phases done
         self.emit("stage", stage="resume", level=s.level, faces=s.mesh.n_faces)
         coarse = self.viewset.at(self.config.coarse_size)
         self.appearance.restore(s.appearance, coarse)
         self.appearance.decide(s.mesh, self.material, coarse, reason="resumed")
-        self._choose_stiffness(coarse)
-
-    def _choose_stiffness(self, views) -> None:
-        self.stiffness = choose_stiffness(self.config, views, spatially_varying=self.appearance.staged)
+        self.stiffness = choose_stiffness(self.config, coarse, spatially_varying=self.appearance.staged)
         self.emit("stiffness", **self.stiffness.event())
 
     # -- the phases --------------------------------------------------------------------------------
     def _phases(self) -> None:
         s = self.state
-        if s.phase in ("level", "transition"):
-            while True:
-                if s.phase == "level":
-                    record = LevelRun(self)()
-                    s.phase = "transition"
-                    self.track("level")
-                    if self._material_cycle(record):
-                        self.track("material")
-                    self.snapshot(loss=record.loss)
-                    s.levels_ended = self._levels_end(record)
-                    if s.levels_ended:
-                        break
-                transition(self)
-                s.level += 1
-                s.phase = "level"
-            s.phase = "materials"
-        if s.phase == "materials":
-            self._finish_materials()
-            s.phase = "polish"
-        if s.phase == "polish":
-            self._polish()
+        for method, phases, after in self.PHASES:
+            if s.phase in phases:
+                getattr(self, method)()
+                s.phase = after
         self.appearance.settle(s.mesh, self.material, self.viewset.at(self.config.max_size), s.level)
 
-    def _levels_end(self, record: LevelRecord) -> str | None:
-        """Why no level follows ``record`` (None: another one does)."""
-        c, s = self.config, self.state
-        previous = s.levels[-2] if len(s.levels) > 1 else None
-        if self.budget.out(self.budget.geometry_reserve()):
-            return "iterations" if self.budget.out_of_iterations() else "time budget"
-        if s.level + 1 >= c.max_levels:
-            return "max levels"
-        if s.level + 1 >= c.min_levels and not keeps_improving(previous, record, c.level_tolerance):
-            return "converged"
-        if s.budget.limit > c.max_faces:
-            return "max faces"
-        return None
+    def _levels(self) -> None:
+        """Geometry levels, each followed by a material cycle and a snapshot, with a transition
+        (re-mesh or subdivide) between two, until ``levels_end`` gives a reason."""
+        s = self.state
+        while True:
+            if s.phase == "level":
+                record = self._level(LevelRun)
+                s.phase = "transition"
+                self.track("level")
+                views = self.viewset.at(level_size(s.level, self.config.coarse_size, self.config.max_size))
+                cycle = self.appearance.level_cycle(s.mesh, self.material, views, s.level)
+                if cycle is not None:
+                    record.add_cycle(cycle)
+                    self.track("material")
+                self.snapshot(loss=record.loss)
+                s.levels_ended = levels_end(self.config, s, self.budget, record)
+                if s.levels_ended:
+                    return
+            transition(self._fit(), self.appearance)
+            s.level += 1
+            s.phase = "level"
+
+    def _level(self, kind: type[LevelRun]) -> LevelRecord:
+        """One level or polish round (``kind``) on the current state; its record."""
+        level = kind(self._fit())
+        try:
+            record = level()
+        finally:
+            self.validation = level.validation
+        if self.truth is not None and self.config.track_metrics:
+            record.metrics = self.metrics(self.state.mesh)
+        return record
+
+    def _fit(self) -> Fit:
+        return Fit(self.capture, self.config, self.state, self.viewset, self.material, self.budget, self.stiffness,
+                   self.appearance.geometry_settings(RenderSettings.for_geometry(self.config)), self.emit, self.paced.progress, self.folder.check_stop, self._checkpoint,
+                   self.objective_factory)
+
+    def _checkpoint(self, vertices, loss: float, validation: float | None) -> None:
+        """Inside a level: a snapshot every ``snapshot_interval`` and the held-out views scored
+        every ``accuracy_every_s`` (--track-accuracy)."""
+        s = self.state
+        self.validation = validation
+        if time.perf_counter() - self.last_snapshot >= snapshot_interval(self.config, self.snapshot_seconds):
+            s.mesh = Mesh(vertices, s.mesh.faces)
+            self.snapshot(loss=loss)
+        if self.accuracy.due():
+            self.track("every", Mesh(vertices, s.mesh.faces))
 
     def _polish(self) -> None:
         """Alternate geometry and material until the loss stops improving (as the paper does):
@@ -242,24 +253,13 @@ class Reconstruction:
         if not self.appearance.staged:
             return
         while s.polished < c.polish_rounds and not self.budget.out(self.budget.polish_reserve()):
-            record = PolishRun(self)()
+            record = self._level(PolishRun)
             s.polished += 1
             self.track("polish")
             self.appearance.refine_material()
             self._finish_materials()
             if record.loss > record.loss_start * (1 - c.polish_tolerance):
                 break
-
-    def _material_cycle(self, record: LevelRecord) -> bool:
-        """The effects re-checked while the lobe is off, then one stage of the staged material
-        schedule, on this level's geometry and views; whether a cycle ran."""
-        s = self.state
-        views = self.viewset.at(level_size(s.level, self.config.coarse_size, self.config.max_size))
-        self.appearance.recheck(s.mesh, self.material, views, s.level)
-        result = self.appearance.material_cycle(s.mesh, self.material, views, s.level)
-        if result is not None:
-            record.add_cycle(result)
-        return result is not None
 
     def _finish_materials(self, most: int = 12) -> None:
         """Once geometry has converged: material stages until their schedule ends."""
@@ -283,20 +283,8 @@ class Reconstruction:
             self.snapshot(loss=result["loss"])
         self.appearance.judge_relight(s.mesh, self.material)
 
-    # -- what the level runs use ---------------------------------------------------------------------
-    def settings(self) -> RenderSettings:
-        return self.appearance.geometry_settings(RenderSettings.for_geometry(self.config))
-
-    def latents(self) -> dict[str, np.ndarray]:
-        return {n: np.array(z, np.float64) for n, z in self.material.parameters().items()}
-
-    def skip(self, why: str) -> None:
-        s = self.state
-        s.skipped += 1
-        self.emit("warning", message=f"step {s.iteration} skipped: {why} ({s.skipped} so far)")
-
     def track(self, why: str, mesh: Mesh | None = None) -> None:
-        """Score the held-out views (--track-accuracy; optimize/accuracy.py) with ``mesh`` (default
+        """Score the held-out views (--track-accuracy; planning/tracking.py) with ``mesh`` (default
         the state's) and the current material: ``why`` "every" only when the interval has passed,
         else at a boundary (start, level, material, polish, end). Not charged to the budget."""
         if not self.accuracy.enabled or (why == "every" and not self.accuracy.due()):
@@ -318,11 +306,6 @@ class Reconstruction:
         return {k: round(v, 6) if isinstance(v, float) else v for k, v in out.items()}
 
     # -- output --------------------------------------------------------------------------------------
-    def snapshot_interval(self) -> float:
-        """Seconds between snapshots: snapshot_every_s, stretched so that writing them (display
-        mesh and resumable state) takes at most snapshot_share of the run."""
-        return snapshot_interval(self.config, self.snapshot_seconds)
-
     def snapshot(self, loss) -> str:
         s = self.state
         start = time.perf_counter()
@@ -357,8 +340,8 @@ class Reconstruction:
         metrics = self.metrics(s.mesh) if self.truth is not None else None
         tracked = self.accuracy.report()
         c = self.config
-        next_level = accuracy.next_level(s.levels, s.levels_ended, (tracked or {}).get("level_gains", []),
-                                         level_size(s.level + 1, c.coarse_size, c.max_size))
+        expected = next_level(s.levels, s.levels_ended, (tracked or {}).get("level_gains", []),
+                              level_size(s.level + 1, c.coarse_size, c.max_size))
         report = {
             "capture": str(self.capture.root), "settings": dataclasses.asdict(self.config),
             "stiffness": self.stiffness.event(),
@@ -371,20 +354,17 @@ class Reconstruction:
                         "metrics_excluded": round(self.budget.excluded, 3)},
             "material": self.material.summary(), "metrics": metrics,
             "premultiplied_views": self.viewset.premultiplied,
-            "accuracy_time": tracked, "next_level": next_level,
+            "accuracy_time": tracked, "next_level": expected,
             **self.appearance.finish(self.folder.path, s.mesh, self.material),
         }
         fsio.write_json(self.folder.path / "report.json", report)
-        self.emit("done", result="result.ply", report="report.json", metrics=metrics, next_level=next_level)
-
-    def _truth(self) -> Mesh | None:
-        rel = self.capture.ground_truth.get("mesh") if self.capture.ground_truth else None
-        path = self.capture.path(rel) if rel else None
-        return load_mesh(path) if path is not None and Path(path).is_file() else None
+        self.emit("done", result="result.ply", report="report.json", metrics=metrics, next_level=expected)
 
 
-def snapshot_interval(config: ReconstructConfig, snapshot_seconds: float) -> float:
-    """``snapshot_every_s``, or longer so that writing snapshots of ``snapshot_seconds`` each
-    takes at most ``snapshot_share`` of the run."""
-    c = config
-    return max(c.snapshot_every_s, snapshot_seconds / c.snapshot_share if c.snapshot_share > 0 else 0.0)
+
+def truth_mesh(capture: Capture) -> Mesh | None:
+    """The capture's ground-truth mesh, when it names one that exists."""
+    rel = capture.ground_truth.get("mesh") if capture.ground_truth else None
+    path = capture.path(rel) if rel else None
+    return load_mesh(path) if path is not None and Path(path).is_file() else None
+

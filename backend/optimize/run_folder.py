@@ -6,6 +6,7 @@ is never older than the snapshot it belongs to; only the newest two display mesh
 
 from __future__ import annotations
 
+import dataclasses
 import io
 import json
 from pathlib import Path
@@ -30,6 +31,8 @@ class RunFolder:
     @classmethod
     def create(cls, path: str | Path, resume: bool, overwrite: bool) -> "RunFolder":
         path = Path(path)
+        if path.exists() and not path.is_dir():
+            raise InputError(path, "the run folder is a file", "give --out a folder (new, or an earlier run's)")
         if resume:
             if not (path / "state" / "state.json").is_file():
                 raise InputError(path, "nothing to resume (no state/state.json)",
@@ -104,3 +107,23 @@ class RunFolder:
         except (OSError, ValueError, KeyError) as err:
             raise InputError(folder, f"cannot read the saved state ({err})", "start a new run") from err
         return state, folder / state["material"]
+
+
+@dataclasses.dataclass
+class Result:
+    """How a run ended: ``exit_code`` 0 (done) or 130 (cancelled), and its folder."""
+
+    exit_code: int
+    folder: Path
+
+    @property
+    def report(self) -> dict | None:
+        path = self.folder / "report.json"
+        return json.loads(path.read_text()) if self.exit_code == 0 and path.is_file() else None
+
+
+def snapshot_interval(config, snapshot_seconds: float) -> float:
+    """``snapshot_every_s``, or longer so that writing snapshots of ``snapshot_seconds`` each
+    takes at most ``snapshot_share`` of the run."""
+    c = config
+    return max(c.snapshot_every_s, snapshot_seconds / c.snapshot_share if c.snapshot_share > 0 else 0.0)

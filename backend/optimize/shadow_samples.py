@@ -1,33 +1,5 @@
-"""Shadow-gradient samples held within a step-cost ratio, measured again at every level.
-
-A projective integrator's indirect-visibility (shadow) term is estimated with ``sppi``
-unguided samples per pixel (``render.effects.SHADOW_SPPI``). What one sample costs grows with
-the image, the mesh and the path depth, so a count that adds a quarter to a 64 px step can
-double a 160 px one. The effects decision says *whether* shadow gradients pay; this controller
-sets *how many* samples each level affords.
-
-At the start of every level or polish round whose settings carry shadow gradients, the level's
-own geometry steps are timed, alternately with the full count ``n`` and with none (real steps:
-a few of the level's hundreds go without the shadow term; the first step of each kind is
-untimed, it compiles kernels). With t(k) the median step time at k samples, and the cost of
-a step taken as linear in k (measured: docs/notes/2026-11-24-hdr-shadow-gradients.md),
-
-    r = t(n) / t(0),        sppi = min(n, max(n_min, floor(n (ratio - 1) / (r - 1))))
-
-so that t(sppi) / t(0) <= ``ratio``. ``ratio`` = 1.9 leaves the margin of the timing's noise
-below the 2x a step with shadow gradients may cost; ``n_min`` keeps the term from vanishing
-(its noise falls as 1/sppi, and the optimiser averages it over steps).
-
-The linear model is then checked on the level's own steps at the kept count: once ``timed``
-of them are timed (after one untimed compile), the achieved ratio a = t(sppi) / t(0) is
-measured. When a > ``ratio`` and more than ``n_min`` samples are kept, the count is derived
-once more from the line through t(0) and t(sppi),
-
-    sppi' = max(n_min, min(sppi - 1, floor(sppi (ratio - 1) / (a - 1)))),
-
-and the achieved ratio is measured again at sppi'. The level's record carries the achieved
-ratio over all its steps at the final count, so every run states what its shadow gradients
-cost, not only what they were predicted to cost."""
+"""Shadow-gradient samples held within a step-cost ratio, timed again at every level
+(the controller: ``ShadowSamples``)."""
 
 from __future__ import annotations
 
@@ -44,7 +16,37 @@ CORRECTIONS = 1  # times the kept count may be derived again from its own steps
 
 @dataclass
 class ShadowSamples:
-    """The schedule of one level (see the module docstring). ``full``: the settings' sppi."""
+    """The schedule of one level. ``full``: the settings' sppi.
+
+    A projective integrator's indirect-visibility (shadow) term is estimated with ``sppi``
+    unguided samples per pixel (``render.effects.SHADOW_SPPI``). What one sample costs grows with
+    the image, the mesh and the path depth, so a count that adds a quarter to a 64 px step can
+    double a 160 px one. The effects decision says *whether* shadow gradients pay; this controller
+    sets *how many* samples each level affords.
+
+    At the start of every level or polish round whose settings carry shadow gradients, the level's
+    own geometry steps are timed, alternately with the full count ``n`` and with none (real steps:
+    a few of the level's hundreds go without the shadow term; the first step of each kind is
+    untimed, it compiles kernels). With t(k) the median step time at k samples, and the cost of
+    a step taken as linear in k (measured: docs/notes/2026-11-24-hdr-shadow-gradients.md),
+
+        r = t(n) / t(0),        sppi = min(n, max(n_min, floor(n (ratio - 1) / (r - 1))))
+
+    so that t(sppi) / t(0) <= ``ratio``. ``ratio`` = 1.9 leaves the margin of the timing's noise
+    below the 2x a step with shadow gradients may cost; ``n_min`` keeps the term from vanishing
+    (its noise falls as 1/sppi, and the optimiser averages it over steps).
+
+    The linear model is then checked on the level's own steps at the kept count: once ``timed``
+    of them are timed (after one untimed compile), the achieved ratio a = t(sppi) / t(0) is
+    measured. When a > ``ratio`` and more than ``n_min`` samples are kept, the count is derived
+    once more from the line through t(0) and t(sppi),
+
+        sppi' = max(n_min, min(sppi - 1, floor(sppi (ratio - 1) / (a - 1)))),
+
+    and the achieved ratio is measured again at sppi'. The level's record carries the achieved
+    ratio over all its steps at the final count, so every run states what its shadow gradients
+    cost, not only what they were predicted to cost.
+    """
 
     full: int
     ratio: float = RATIO

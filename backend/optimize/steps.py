@@ -1,11 +1,5 @@
 """Optimizers in NumPy: Laplacian-preconditioned vertex steps ("Large Steps", Nicolet et al.
-2021) and plain Adam for material latents.
-
-Vertices v are optimised through u = (I + lambda L) v, L the combinatorial Laplacian: the
-gradient in u is (I + lambda L)^-1 dLoss/dv, a smoothed gradient, and a step in u moves a
-whole neighbourhood of the surface. Steps use "uniform" Adam (one second-moment scale, the
-largest, for all coordinates), so the smoothing survives the normalisation and the largest
-step in u is about the learning rate, which is set relative to the mesh's edge length."""
+2021; ``VertexOptimizer``) and plain Adam for material latents."""
 
 from __future__ import annotations
 
@@ -48,7 +42,14 @@ class LaplacianSystem:
 
 
 class VertexOptimizer:
-    """Uniform Adam on u = (I + lambda L) v."""
+    """Uniform Adam on u = (I + lambda L) v.
+
+    Vertices v are optimised through u = (I + lambda L) v, L the combinatorial Laplacian: the
+    gradient in u is (I + lambda L)^-1 dLoss/dv, a smoothed gradient, and a step in u moves a
+    whole neighbourhood of the surface. Steps use "uniform" Adam (one second-moment scale, the
+    largest, for all coordinates), so the smoothing survives the normalisation and the largest
+    step in u is about the learning rate, which is set relative to the mesh's edge length.
+    """
 
     def __init__(self, vertices: np.ndarray, faces: np.ndarray, lambda_: float, lr: float,
                  betas: tuple[float, float] = (0.9, 0.999)):

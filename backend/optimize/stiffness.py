@@ -1,17 +1,5 @@
-"""How stiff the Large Steps system is: chosen from the frames' colour variation.
-
-A soft system (lambda 2, gradients capped at the 95th percentile) lets detail converge
-fast, and wins when the material model can explain the frames' colours: a uniformly
-coloured object, or mesh colors that learn the texture. When one constant material must
-stand for a textured object, the texture left in the residual pushes a soft surface into
-bumps, and a stiff system (lambda 20, cap 99.5) is better (figures: docs/results.md).
-
-Texture is detected from chromaticity, which shading under white light does not change:
-the 90th percentile of the distance of object pixels' chromaticity (r, g, b) / (r + g + b)
-from its median, in the masks' interior, without the darkest and brightest pixels
-(shadows, highlights). A uniform object scores ~0; the demo blob 0.16, the colour corner
-0.55. A coloured environment map (a sunset) also raises it; the stiff system is then the
-safe choice. Grey-level texture is not detected."""
+"""How stiff the Large Steps system is, chosen from the frames' colour variation (the rule:
+``choose``)."""
 
 from __future__ import annotations
 
@@ -58,7 +46,20 @@ def chroma_spread(views) -> float:
 
 def choose(config, views, spatially_varying: bool) -> Stiffness:
     """The system for this run: the configured values win; otherwise soft unless one
-    constant material must absorb a textured appearance."""
+    constant material must absorb a textured appearance.
+
+    A soft system (lambda 2, gradients capped at the 95th percentile) lets detail converge
+    fast, and wins when the material model can explain the frames' colours: a uniformly
+    coloured object, or mesh colors that learn the texture. When one constant material must
+    stand for a textured object, the texture left in the residual pushes a soft surface into
+    bumps, and a stiff system (lambda 20, cap 99.5) is better (figures: docs/results.md).
+
+    Texture is detected from chromaticity, which shading under white light does not change:
+    the 90th percentile of the distance of object pixels' chromaticity (r, g, b) / (r + g + b)
+    from its median, in the masks' interior, without the darkest and brightest pixels
+    (shadows, highlights). A uniform object scores about 0. A coloured environment map (a sunset) also raises it; the stiff system is then the
+    safe choice. Grey-level texture is not detected.
+    """
     if config.lambda_ is not None and config.clip is not None:
         return Stiffness(config.lambda_, config.clip, None, "given")
     spread = chroma_spread(views)

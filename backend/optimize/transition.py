@@ -12,34 +12,35 @@ from ..geometry.subdivide import midpoint
 from ..geometry.topology import inspect
 
 
-def transition(run) -> None:
-    """Re-mesh when needed, subdivide 1-to-4, honour the face budget (``run``: the
-    optimize.run.Reconstruction whose state.mesh and material change)."""
-    c, s = run.config, run.state
+def transition(fit, appearance) -> None:
+    """Re-mesh when needed, else subdivide 1-to-4 and honour the face budget. ``fit``: the
+    run's optimize.levels.Fit, whose ``state.mesh`` and ``material`` change; ``appearance``:
+    the run's Appearance, told of a re-mesh."""
+    c, s = fit.config, fit.state
     old = s.mesh
-    if c.remesh != "never" and _remesh(run, old):
+    if c.remesh != "never" and _remesh(fit, appearance, old):
         return
     start = time.perf_counter()
-    run.emit("stage", stage="refine", level=s.level, faces=old.n_faces)
+    fit.emit("stage", stage="refine", level=s.level, faces=old.n_faces)
     fine, _ = midpoint(old)
     s.mesh = s.budget.enforce(fine)
     if s.mesh is fine:
-        run.material.on_subdivide(old, fine)
+        fit.material.on_subdivide(old, fine)
     else:
         # the simplified mesh lies on the old surface: resample the mesh colors rather than
         # restart them from grey, so the next level's steps see the fitted material
-        run.material.on_remesh(s.mesh, old_mesh=old, reset=False)
+        fit.material.on_remesh(s.mesh, old_mesh=old, reset=False)
     s.timed("refine", start)
 
 
-def _remesh(run, old) -> bool:
+def _remesh(fit, appearance, old) -> bool:
     """The re-mesh check after a level, recorded in its LevelRecord; True when applied."""
-    c, s = run.config, run.state
+    c, s = fit.config, fit.state
     start = time.perf_counter()
-    run.emit("stage", stage="remesh", level=s.level, faces=old.n_faces)
-    run.progress.update(force=True, stage="remesh", level=s.level, faces=old.n_faces)
-    cameras = [v.camera for v in run.viewset.views]
-    masks = [v.mask for v in run.viewset.views] if run.capture.has_masks else None
+    fit.emit("stage", stage="remesh", level=s.level, faces=old.n_faces)
+    fit.progress.update(force=True, stage="remesh", level=s.level, faces=old.n_faces)
+    cameras = [v.camera for v in fit.viewset.views]
+    masks = [v.mask for v in fit.viewset.views] if fit.capture.has_masks else None
     samples = visible_samples(old, cameras, masks)
     hits = len(samples.points) + samples.back_faces + samples.outside_masks
     share = (samples.back_faces + samples.outside_masks) / max(hits, 1)
@@ -53,13 +54,13 @@ def _remesh(run, old) -> bool:
                 raise SurfaceReconstructionError("the rebuilt surface is not a closed manifold "
                                                  f"({', '.join(report.issues)})")
         except SurfaceReconstructionError as err:  # the current surface stays; the level goes on
-            run.emit("warning", message=f"re-meshing not applied: {err}")
+            fit.emit("warning", message=f"re-meshing not applied: {err}")
             remeshed = None
         else:
             # the rebuilt surface lies on the old one where the views agree: resample the fitted
             # material instead of restarting it from grey, which cost every level a refit
-            run.material.on_remesh(remeshed, old_mesh=old, reset=False)
-            run.appearance.on_remesh(remeshed, run.material, run.viewset.at(c.coarse_size))
+            fit.material.on_remesh(remeshed, old_mesh=old, reset=False)
+            appearance.on_remesh(remeshed, fit.material, fit.viewset.at(c.coarse_size))
             s.mesh = remeshed
     s.timed("remesh", start)
     s.levels[-1].remesh = {"seconds": round(time.perf_counter() - start, 3),

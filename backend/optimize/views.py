@@ -1,9 +1,5 @@
-"""Target views: images premultiplied by their masks, resampled for coarse-to-fine levels.
-
-The loss compares a render (black outside the object, since emitters are hidden) with
-mask x image, so it is the paper's masked MSE over the whole frame. Images that are already
-black outside their masks (synthetic renders) count as premultiplied and are used as they
-are, so anti-aliased edges are not multiplied by their coverage twice."""
+"""Target views: images premultiplied by their masks, resampled for coarse-to-fine levels
+(``ViewSet``)."""
 
 from __future__ import annotations
 
@@ -52,7 +48,13 @@ def frame_size(camera: Camera, long_side: int) -> tuple[int, int]:
 
 
 class ViewSet:
-    """All frames of a capture, loaded once at most ``max_size`` pixels on the long side."""
+    """All frames of a capture, loaded once at most ``max_size`` pixels on the long side.
+
+    The loss compares a render (black outside the object, since emitters are hidden) with
+    mask x image, so it is the paper's masked MSE over the whole frame. Images that are already
+    black outside their masks (synthetic renders) count as premultiplied and are used as they
+    are, so anti-aliased edges are not multiplied by their coverage twice.
+    """
 
     def __init__(self, capture: Capture, max_size: int):
         self.views: list[View] = []

@@ -71,7 +71,7 @@ def addon(extension):
     """The installed extension's ``addon`` package (its bpy-free and bpy modules)."""
     import importlib
 
-    for name in ("jobs", "scene_mesh", "ply", "preview", "export", "capture_file", "scene_cameras"):
+    for name in ("jobs", "scene_mesh", "io.ply", "preview", "export", "io.capture_file", "scene_cameras"):
         importlib.import_module(f"{extension.__name__}.addon.{name}")
     return extension.addon
 

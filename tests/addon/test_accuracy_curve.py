@@ -44,7 +44,7 @@ def test_the_panel_curve_is_updated_in_place_from_accuracy_events(context, addon
     job = addon.jobs.ReconstructJob(sys.executable, ["reconstruct", "c", "--out", str(run), "--mode", "accuracy",
                                                     "--steps", "4", "--delay", "0.3"], run, "Reconstruction",
                                     root=SCRIPTED_BACKEND)
-    curve = addon.accuracy
+    curve = addon.accuracy_curve
     try:
         assert not curve.shown() and not any(e[0] == "template_icon" for e in draw(context))
         reds = []

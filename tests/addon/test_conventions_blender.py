@@ -9,8 +9,8 @@ import bpy
 import numpy as np
 import pytest
 
-from addon.capture_file import blender_camera
-from addon.envmap import uv_to_direction
+from addon.io.capture_file import blender_camera
+from addon.io.envmap import uv_to_direction
 from backend.capture.model import Camera
 from backend.synth.layout import look_at
 
@@ -70,11 +70,11 @@ def test_synthetic_masks_match_blender_silhouettes(context, addon, tiny_capture,
     """The backend (Mitsuba) made the capture; Blender renders the same mesh from the
     imported cameras. The silhouettes must agree."""
     assert bpy.ops.sft.import_cameras(filepath=str(tiny_capture / "capture.json")) == {"FINISHED"}
-    gt = addon.ply.read_display_mesh(tiny_capture / "gt" / "mesh.ply")
+    gt = addon.io.ply.read_display_mesh(tiny_capture / "gt" / "mesh.ply")
     obj = addon.scene_mesh.reconstruction_object(context)
     addon.scene_mesh.apply_display_mesh(obj, gt)
     scene = context.scene
-    info = addon.capture_file.read_capture(tiny_capture)
+    info = addon.io.capture_file.read_capture(tiny_capture)
     from addon.images import read_rgba
 
     for i in (0, 3):

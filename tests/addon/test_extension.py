@@ -4,6 +4,7 @@ enable, sidebar panels, preferences and the backend check."""
 from __future__ import annotations
 
 import ast
+import json
 import zipfile
 
 import bpy
@@ -22,6 +23,7 @@ def test_zip_holds_addon_and_backend_only(built_zip):
     assert "blender_manifest.toml" in names and "__init__.py" in names
     assert "addon/operators/reconstruct.py" in names and "addon/ui/panels.py" in names
     assert "backend/__main__.py" in names and "backend/commands/check.py" in names
+    assert "addon/io/preset_file.py" in names and "backend/presets.json" in names  # the Quality list's source
     for excluded in (".venv/", "tests/", "docs/", "scripts/", ".git/", "runs/", "bench/"):
         assert not any(n.startswith(excluded) for n in names), excluded
     assert not any("__pycache__" in n or n.endswith((".pyc", ".blend", ".zip")) for n in names)
@@ -57,12 +59,17 @@ def test_addon_never_imports_heavy_libraries():
 def test_default_preset_calibration_shown(extension, context):
     from importlib import import_module
 
-    presets = import_module(f"{extension.__name__}.addon.presets")
-    calib = presets.calibration()
+    preset_file = import_module(f"{extension.__name__}.addon.io.preset_file")
+    calib = preset_file.calibration()
     expected = "not calibrated" if not (REPO / "backend" / "presets.json").is_file() else None
-    text = presets.describe("balanced", calib)
+    text = preset_file.describe("balanced", calib)
     assert context.scene.sft.preset == "auto"  # the preset that fits the time budget
     assert text == expected if expected else text
+    # the Quality list is the preset file's
+    items = [item.identifier for item in context.scene.sft.bl_rna.properties["preset"].enum_items]
+    assert items == ["auto", *(key for key, _, _ in preset_file.enum_items(calib))]
+    if calib:
+        assert items[1:] == list(json.loads((REPO / "backend" / "presets.json").read_text())["presets"])
 
 
 def test_check_backend_button(extension, context):

@@ -16,7 +16,7 @@ import bpy
 
 from .conftest import REPO
 
-INSTALLER = REPO / "addon" / "install_backend.py"
+INSTALLER = REPO / "addon" / "io" / "install_backend.py"
 
 
 def _installer(venv: Path, env: dict | None = None) -> subprocess.Popen:

@@ -1,21 +1,24 @@
-"""The add-on's bpy-free logic: PLY reading, environment and camera conventions, frames,
-presets, run state and interpreter choice (no Blender needed)."""
+"""The add-on's bpy-free layer (addon/io): PLY reading, environment and camera conventions,
+frames, the preset file, run state and interpreter choice; and that the layer imports
+without Blender."""
 
 from __future__ import annotations
 
 import json
 import math
 import os
+import subprocess
+import sys
 import time
 
 import numpy as np
 import pytest
 from PIL import Image
 
-from addon import capture_file, envmap, frames, interpreter, presets, progress
-from addon.errors import AddonInputError
-from addon.files import png_bytes, replace_dir, write_atomic
-from addon.ply import read_display_mesh
+from addon.io import capture_file, envmap, frames, interpreter, preset_file, progress
+from addon.io.errors import AddonInputError
+from addon.io.files import png_bytes, replace_dir, write_atomic
+from addon.io.ply import read_display_mesh
 from backend.geometry.mesh import Mesh, save_mesh
 
 
@@ -174,35 +177,74 @@ def test_image_sequence_natural_order(tmp_path):
 
 
 def test_presets_calibration(tmp_path):
-    assert presets.calibration(tmp_path) == {}
-    assert presets.describe("draft", {}) == "not calibrated"
+    assert preset_file.calibration(tmp_path) == {}
+    assert preset_file.describe("draft", {}) == "not calibrated"
     (tmp_path / "backend").mkdir()
     (tmp_path / "backend" / "presets.json").write_text(json.dumps(
         {"machine": "2-core CI", "presets": {"draft": {"expected_minutes": 3.5, "expected_f1": 0.812}}}))
-    calib = presets.calibration(tmp_path)
-    assert presets.describe("draft", calib) == "~3.5 min, F1 0.81 on 2-core CI"
-    assert presets.describe("final", calib) == "not calibrated"
+    calib = preset_file.calibration(tmp_path)
+    assert preset_file.describe("draft", calib) == "~3.5 min, F1 0.81 on 2-core CI"
+    assert preset_file.describe("final", calib) == "not calibrated"
     # an HDR-lit capture is shown its own kind's figures, else the point-lit ones with a warning
-    assert presets.kind_for("ESTIMATE") == presets.kind_for("RIG") == "environment"
-    assert presets.kind_for("CAPTURED", "/maps/studio.hdr") == "environment"
-    assert presets.kind_for("CAPTURED") == presets.kind_for("FLASH", "/maps/studio.hdr") == "point"
-    entries, note = presets.kind_calibration(calib, "environment")
+    assert preset_file.kind_for("ESTIMATE") == preset_file.kind_for("RIG") == "environment"
+    assert preset_file.kind_for("CAPTURED", "/maps/studio.hdr") == "environment"
+    assert preset_file.kind_for("CAPTURED") == preset_file.kind_for("FLASH", "/maps/studio.hdr") == "point"
+    entries, note = preset_file.kind_calibration(calib, "environment")
     assert entries is calib and note.endswith("HDR-lit captures take longer")
     calib["kinds"] = {"point": {"presets": calib["presets"]},
                       "environment": {"presets": {"draft": {"expected_minutes": 4.8, "expected_f1": 0.97},
                                                   "final": {"expected_minutes": 9.0, "expected_f1": 0.96,
                                                             "dominated_by": "draft"}}}}
-    entries, note = presets.kind_calibration(calib, "environment")
-    assert presets.describe("draft", entries) == "~4.8 min, F1 0.97 on 2-core CI"
+    entries, note = preset_file.kind_calibration(calib, "environment")
+    assert preset_file.describe("draft", entries) == "~4.8 min, F1 0.97 on 2-core CI"
     # a preset a cheaper one matched on that kind's scene says it buys nothing there
-    assert presets.describe("final", entries) == "~9 min, F1 0.96 (no gain over Draft) on 2-core CI"
+    assert preset_file.describe("final", entries) == "~9 min, F1 0.96 (no gain over Draft) on 2-core CI"
     assert note == "Times measured on an HDR-lit object"
-    entries, note = presets.kind_calibration(calib, "point")
-    assert presets.describe("draft", entries) == "~3.5 min, F1 0.81 on 2-core CI"
+    entries, note = preset_file.kind_calibration(calib, "point")
+    assert preset_file.describe("draft", entries) == "~3.5 min, F1 0.81 on 2-core CI"
     assert note == "Times measured on a point-lit object"
     (tmp_path / "backend" / "presets.json").write_text("{not json")
-    assert presets.calibration(tmp_path) == {}
+    assert preset_file.calibration(tmp_path) == {}
 
+
+
+def test_preset_list_comes_from_the_preset_file(tmp_path):
+    # the shipped file names the Quality enum's items, in its order
+    shipped = json.loads((interpreter.PACKAGE_DIR / "backend" / "presets.json").read_text())
+    assert [key for key, _, _ in preset_file.PRESETS] == list(shipped["presets"])
+    assert [label for _, label, _ in preset_file.PRESETS] == [k.capitalize() for k in shipped["presets"]]
+    (tmp_path / "backend").mkdir()
+    (tmp_path / "backend" / "presets.json").write_text(json.dumps(
+        {"presets": {"balanced": {"expected_minutes": 12.0}, "draft": {}},
+         "kinds": {"environment": {"presets": {"draft": {}, "sketch": {"expected_minutes": 0.5}}}}}))
+    items = preset_file.enum_items(preset_file.calibration(tmp_path))
+    assert [key for key, _, _ in items] == ["balanced", "draft", "sketch"]  # a kind's own preset comes last
+    assert items[1] == ("draft", "Draft", preset_file.DESCRIPTIONS["draft"])
+    assert items[2][1:] == ("Sketch", "The backend's Sketch preset")
+    # without a readable file: the same names as the backend's, with their tooltips
+    (tmp_path / "backend" / "presets.json").unlink()
+    assert [key for key, _, _ in preset_file.enum_items(preset_file.calibration(tmp_path))] == [
+        "draft", "balanced", "final"]
+    assert preset_file.preset_names({"presets": {}}) == preset_file.FALLBACK_NAMES
+
+
+def test_io_layer_imports_without_blender():
+    """Every module of addon/io imports in a Python where bpy (and Mitsuba) cannot be imported."""
+    folder = interpreter.PACKAGE_DIR / "addon" / "io"
+    modules = sorted(p.stem for p in folder.glob("*.py") if p.stem != "__init__")
+    assert {"interpreter", "process", "progress", "ply", "preset_file", "install_backend"} <= set(modules)
+    script = (
+        "import importlib, json, sys\n"
+        "for name in ('bpy', 'bpy_extras', 'mathutils', 'mitsuba', 'drjit'):\n"
+        "    sys.modules[name] = None  # import raises ImportError\n"
+        f"for name in {modules!r}:\n"
+        "    importlib.import_module('addon.io.' + name)\n"
+        "print(json.dumps(sorted(m for m in sys.modules if m.split('.')[0] == 'addon')))\n")
+    proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120,
+                          cwd=interpreter.PACKAGE_DIR, env=interpreter.environment())
+    assert proc.returncode == 0, proc.stderr
+    loaded = json.loads(proc.stdout.strip().splitlines()[-1])
+    assert set(loaded) == {"addon", "addon.io", *(f"addon.io.{m}" for m in modules)}, "only the io layer loads"
 
 def test_run_state_follows_events():
     state = progress.RunState()
@@ -296,8 +338,6 @@ def test_backend_command_discovery():
 
 
 def test_check_reports_real_interpreter(tmp_path):
-    import sys
-
     ok = interpreter.check(sys.executable)
     assert ok.ok and ok.summary.startswith("OK") and "mitsuba" in ok.summary
     missing = interpreter.check(str(tmp_path / "no-python"))

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import bpy
 
-from backend.optimize import forecast
+from backend.planning import accuracy_forecast as forecast
 
 from .test_panels import draw
 

@@ -9,8 +9,8 @@ import time
 
 import pytest
 
-from addon import interpreter, progress
-from addon.process import BackendProcess, parse_event
+from addon.io import interpreter, progress
+from addon.io.process import BackendProcess, parse_event
 
 from .conftest import SCRIPTED_BACKEND
 

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from addon import interpreter
+from addon.io import interpreter
 from backend import fsio
 from backend.geometry.mesh import Mesh, save_mesh
 from tests.conftest import run_cli
@@ -344,7 +344,7 @@ def test_export_gltf_with_baked_textures(context, addon, lights_capture, tmp_pat
     texture = np.asarray(Image.open(io.BytesIO(binary[view.get("byteOffset", 0):][:view["byteLength"]])).convert("RGB"))
     assert texture.shape == (512, 512, 3)
     # the texel at each face's atlas centre holds the face's mean albedo (sRGB-encoded)
-    gt = addon.ply.read_display_mesh(lights_capture / "gt" / "mesh.ply")
+    gt = addon.io.ply.read_display_mesh(lights_capture / "gt" / "mesh.ply")
     uv = addon.export.atlas_uvs(len(gt.faces), 512).reshape(-1, 3, 2).mean(1)
     faces = np.random.default_rng(0).choice(len(gt.faces), 200, replace=False)
     expected = gt.colors[gt.faces[faces]].mean(1)

@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
+from pathlib import Path
 
 import pytest
 
@@ -31,6 +33,9 @@ def test_hdr_bench_times_and_scores_every_configuration(tmp_path):
     octree = rows["sppi=2,guiding_reuse=2"]
     assert octree["guiding"] > 0 and octree["builds"] == 0  # built untimed on the older mesh, then reused
     assert octree["shadow_norm"] > 0
+    record = json.loads((Path(os.environ["SFT_RECORDS"]) / "hdr.json").read_text())
+    assert [r["samples"] for r in record["figures"]["rows"]] == [4, 2]  # one row per configuration with shadows
+    assert all(r["without s"] > 0 and r["ratio"] > 0 for r in record["figures"]["rows"])
 
 
 def test_configuration_parsing():

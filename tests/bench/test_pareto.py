@@ -10,7 +10,7 @@ import numpy as np
 from backend.bench import _pareto
 from tests.helpers import REPO
 from backend.bench.calibrate import overrides
-from backend.optimize.presets import preset_for_budget
+from backend.planning.presets import preset_for_budget
 from backend.bench.sweep import GRIDS, Setting
 
 

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import json
+import os
+from pathlib import Path
 
 from backend.bench import plan as bench_plan
 from tests.helpers import run_cli
@@ -22,6 +24,9 @@ def test_bench_plan_compares_the_promise_with_the_run(tmp_path):
     assert row["effects"] is not None and set(row["plan"]) == {"geometry_s", "material_s", "polish_s", "fixed_s"}
     assert doc["summary"]["runs"] == 1 and doc["summary"]["time_median_abs_error"] == abs(row["time_error"])
     assert "tiny" in proc.stdout and "predicted min" in proc.stdout
+    record = json.loads((Path(os.environ["SFT_RECORDS"]) / "plan.json").read_text())
+    (recorded,) = [r for r in record["figures"]["rows"] if r["capture"] == "tiny"]
+    assert recorded["predicted min"] == row["predicted_minutes"] and record["figures"]["scalars"]["runs"] >= 1
     # --replan: the same model on the recorded step costs gives the run's own promise back
     proc = run_cli("bench", "plan", "--out", out, "--replan", timeout=300)
     assert proc.returncode == 0, proc.stderr[-3000:]

@@ -18,7 +18,7 @@ from pathlib import Path
 import pytest
 
 from backend.bench.calibrate import KINDS, calibration, dominated
-from backend.optimize.presets import CALIBRATION_FILE, PRESETS, preset_for_budget
+from backend.planning.presets import CALIBRATION_FILE, PRESETS, preset_for_budget
 
 REPO = Path(__file__).resolve().parents[2]
 

@@ -7,12 +7,13 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 
 import pytest
 
 from backend.bench import _pareto, calibrate, sweep
 from backend.geometry.mesh import load_mesh
-from backend.optimize.presets import preset_for_budget
+from backend.planning.presets import preset_for_budget
 
 
 @pytest.fixture(scope="module")
@@ -24,6 +25,13 @@ def swept(tmp_path_factory):
                               "--report", str(root / "report"), "--repeats", "1", "--eval-spp", "16"])
     assert sweep.run(args) == 0
     return root
+
+
+def test_the_sweep_writes_its_record_where_sft_records_points(swept):
+    record = json.loads((sweep.Path(os.environ["SFT_RECORDS"]) / "sweep.json").read_text())
+    assert record["benchmark"] == "sweep" and record["commit"] and record["machine"]["cores"] >= 1
+    assert sorted(r["setting"] for r in record["figures"]["rows"]) == ["smoke-a", "smoke-b"]
+    assert all(p.endswith("pareto_tiny.png") for p in record["plots"])
 
 
 def test_every_setting_is_measured_and_scored(swept):

@@ -48,22 +48,22 @@ def scene(tmp_path_factory):
 def test_recovers_rotation_and_strength(scene):
     capture, hull, env = scene
     events = []
-    estimate = align_lighting(capture, hull, env, AlignConfig(), emit=lambda kind, **f: events.append((kind, f)))
-    error = _angle_error(estimate.rotation_z_deg, ROTATION)
-    print(f"rotation {estimate.rotation_z_deg:.2f} deg (error {error:.2f}), strength {estimate.strength:.3f} "
-          f"(truth {STRENGTH}), gains {np.round(estimate.gains, 3)}, loss {estimate.loss:.4f}, "
-          f"{estimate.pixels} pixels, {estimate.seconds:.1f} s")
+    alignment = align_lighting(capture, hull, env, AlignConfig(), emit=lambda kind, **f: events.append((kind, f)))
+    error = _angle_error(alignment.rotation_z_deg, ROTATION)
+    print(f"rotation {alignment.rotation_z_deg:.2f} deg (error {error:.2f}), strength {alignment.strength:.3f} "
+          f"(truth {STRENGTH}), gains {np.round(alignment.gains, 3)}, loss {alignment.loss:.4f}, "
+          f"{alignment.pixels} pixels, {alignment.seconds:.1f} s")
     assert error < 5.0
-    assert abs(estimate.strength / STRENGTH - 1) < 0.10
-    assert max(estimate.gains) / min(estimate.gains) < 1.05  # a grey object stays grey
-    coarse = dict(estimate.coarse)
-    assert len(coarse) == 180 and estimate.loss <= min(coarse.values())  # refinement never worsens the search
-    assert [v for _, v in estimate.refine] == sorted((v for _, v in estimate.refine), reverse=True)
+    assert abs(alignment.strength / STRENGTH - 1) < 0.10
+    assert max(alignment.gains) / min(alignment.gains) < 1.05  # a grey object stays grey
+    coarse = dict(alignment.coarse)
+    assert len(coarse) == 180 and alignment.loss <= min(coarse.values())  # refinement never worsens the search
+    assert [v for _, v in alignment.refine] == sorted((v for _, v in alignment.refine), reverse=True)
     assert {f["stage"] for k, f in events if k == "progress"} >= {"lighting:search", "lighting:transport"}
-    doc = estimate.provenance()
+    doc = alignment.provenance()
     assert doc["aligned"] and len(doc["coarse_curve"]) == 180 and doc["refine_curve"]
     # the frames' background is black (emitters hidden): nothing to take the scale from
-    assert estimate.scale_from == "mean albedo 0.5" and estimate.response.provenance == "normalised"
+    assert alignment.scale_from == "mean albedo 0.5" and alignment.response.provenance == "normalised"
 
     known = align_lighting(capture, hull, env, AlignConfig(), rotation_z_deg=ROTATION)
     assert known.rotation_z_deg == ROTATION and not known.coarse
@@ -145,17 +145,17 @@ def test_camera_response_from_a_visible_background(scene, tmp_path):
         write_image(image, renderer.render_numpy(i, seed=i) * exposure * balance)
         frames.append(Frame(f.name, image, f.camera, mask=f.mask))
     shot = Capture(tmp_path, frames, Environment(capture.environment.path))
-    estimate = align_lighting(shot, hull, env, AlignConfig())
-    response = estimate.response
-    implied = 0.5 * np.asarray(estimate.gains) / (estimate.strength * np.asarray(response.white_balance))
-    print(f"rotation {estimate.rotation_z_deg:.2f}, strength {estimate.strength:.3f} (truth "
+    alignment = align_lighting(shot, hull, env, AlignConfig())
+    response = alignment.response
+    implied = 0.5 * np.asarray(alignment.gains) / (alignment.strength * np.asarray(response.white_balance))
+    print(f"rotation {alignment.rotation_z_deg:.2f}, strength {alignment.strength:.3f} (truth "
           f"{exposure * STRENGTH * balance.mean():.3f}), white balance {np.round(response.white_balance, 3)} "
           f"(truth {np.round(balance / balance.mean(), 3)}), implied albedo {np.round(implied, 3)}, "
-          f"background {estimate.background.provenance()}")
-    assert estimate.scale_from == "background" and response.provenance == "estimated"
-    assert _angle_error(estimate.rotation_z_deg, ROTATION) < 5.0
+          f"background {alignment.background.provenance()}")
+    assert alignment.scale_from == "background" and response.provenance == "estimated"
+    assert _angle_error(alignment.rotation_z_deg, ROTATION) < 5.0
     assert np.allclose(response.white_balance, balance / balance.mean(), rtol=0.03)
-    assert abs(estimate.strength / (exposure * STRENGTH * balance.mean()) - 1) < 0.10
+    assert abs(alignment.strength / (exposure * STRENGTH * balance.mean()) - 1) < 0.10
     assert np.allclose(implied, albedo, rtol=0.10)
 
 
@@ -194,8 +194,8 @@ def test_the_background_breaks_a_near_tie_of_the_shading(scene, tmp_path):
         image = tmp_path / f"{f.name}.png"
         write_image(image, renderer.render_numpy(i, seed=i))
         frames.append(Frame(f.name, image, f.camera, mask=f.mask))
-    estimate = align_lighting(Capture(tmp_path, frames, Environment(path)), hull, env, AlignConfig())
-    print(f"rotation {estimate.rotation_z_deg:.2f}, ties {estimate.ties}")
-    assert _angle_error(estimate.rotation_z_deg, ROTATION) < 5.0
-    assert len(estimate.ties) >= 2 and sum(t.get("chosen", False) for t in estimate.ties) == 1
-    assert estimate.provenance()["ties"] == estimate.ties
+    alignment = align_lighting(Capture(tmp_path, frames, Environment(path)), hull, env, AlignConfig())
+    print(f"rotation {alignment.rotation_z_deg:.2f}, ties {alignment.ties}")
+    assert _angle_error(alignment.rotation_z_deg, ROTATION) < 5.0
+    assert len(alignment.ties) >= 2 and sum(t.get("chosen", False) for t in alignment.ties) == 1
+    assert alignment.provenance()["ties"] == alignment.ties

@@ -24,7 +24,7 @@ from backend.cli import main  # noqa: E402
 from backend.errors import InputError  # noqa: E402
 from backend.geometry.mesh import load_mesh  # noqa: E402
 from backend.lighting import convention, fitted  # noqa: E402
-from backend.lighting.estimate import EstimatedEnvironment  # noqa: E402
+from backend.lighting.estimated_map import EstimatedEnvironment  # noqa: E402
 from backend.lighting.flash import Flash  # noqa: E402
 from backend.material.model import MeshColorMaterial  # noqa: E402
 from backend.metrics.evaluate import _view_metrics  # noqa: E402

@@ -1,4 +1,4 @@
-"""``--lighting flash`` (backend.lighting.flash, backend.lighting.setup): a point light at every
+"""``--lighting flash`` (backend.lighting.flash, backend.lighting.modes): a point light at every
 camera, its intensity fitted through real renders with the material, the albedo x light
 scale settled by the mean-albedo convention; ``synth --lighting flash`` renders the test
 captures; the command end to end on a tiny flash-lit capture that carries no lights."""
@@ -21,7 +21,7 @@ from backend.capture.load import load_capture  # noqa: E402
 from backend.capture.model import Capture, Environment, Frame  # noqa: E402
 from backend.errors import InputError  # noqa: E402
 from backend.lighting import convention, flash  # noqa: E402
-from backend.lighting.setup import resolve_lighting  # noqa: E402
+from backend.lighting.modes import resolve_lighting  # noqa: E402
 from backend.material import stages  # noqa: E402
 from backend.material.model import MeshColorMaterial  # noqa: E402
 from backend.render.scene import RenderSettings, SceneRenderer  # noqa: E402

@@ -18,7 +18,7 @@ from backend import variant
 variant.choose()
 
 from backend.capture.model import Environment  # noqa: E402
-from backend.lighting import estimate  # noqa: E402
+from backend.lighting import estimated_map  # noqa: E402
 from backend.material.model import MeshColorMaterial  # noqa: E402
 from backend.render.scene import RenderSettings, SceneRenderer  # noqa: E402
 from backend.synth import layout, procedural  # noqa: E402
@@ -28,7 +28,7 @@ from tests.lighting.test_fitted import ESTIMATE_FAST, ESTIMATE_SETTINGS, evaluat
 
 def _rig_map(width: int = 32, height: int = 16) -> np.ndarray:
     """A dim map with one bright patch at the rig frame's +x (toward the camera), a little above."""
-    d = estimate.directions(width, height)
+    d = estimated_map.directions(width, height)
     toward = np.array([np.cos(0.3), 0.0, np.sin(0.3)])
     lobe = np.exp(12 * (d @ toward - 1))[..., None]
     return (0.05 + 20 * lobe * np.ones(3)).astype(np.float32)

@@ -1,4 +1,4 @@
-"""--track-accuracy: held-out PSNR against run time (backend/optimize/accuracy.py), its events,
+"""--track-accuracy: held-out PSNR against run time (backend/planning/tracking.py), its events,
 report.json ``accuracy_time``, RUN/accuracy_time.png and the next-level estimate."""
 
 from __future__ import annotations
@@ -73,7 +73,7 @@ def test_a_tracked_run_draws_held_out_psnr_rising_with_time(truth_capture, tmp_p
     with Image.open(run / series["figure"]) as image:
         assert image.format == "PNG" and image.size == (560, 300)
         pixels = np.asarray(image.convert("RGB")).reshape(-1, 3)
-    from backend.optimize import accuracy_figure as figure
+    from backend.planning import tracking_figure as figure
 
     for colour in (figure.PSNR_COLOUR, figure.STAGE_COLOURS["geometry"], figure.STAGE_COLOURS["material"]):
         assert (pixels == colour).all(-1).sum() > 20, colour
@@ -87,6 +87,7 @@ def test_without_ground_truth_every_8th_view_is_held_out_and_never_fitted(plain_
     from backend.optimize.objective import Objective
     from backend.optimize.run import reconstruct
     from backend.optimize.run_folder import RunFolder
+    from backend.planning import tracking
 
     fitted: set[str] = set()
 
@@ -100,7 +101,8 @@ def test_without_ground_truth_every_8th_view_is_held_out_and_never_fitted(plain_
                                max_size=32, coarse_size=32, initial_faces=800, spp=4, max_levels=1, iterations=30,
                                level_iterations=30, validation_views=2, track_accuracy=True, accuracy_every_s=1)
     folder = RunFolder.create(tmp_path / "run", resume=False, overwrite=False)
-    assert reconstruct(capture, folder, config, lambda *a, **k: None, objective_factory=recording).exit_code == 0
+    assert reconstruct(capture, folder, config, lambda *a, **k: None, objective_factory=recording,
+                       tracking=tracking.start).exit_code == 0
     series = json.loads((tmp_path / "run" / "report.json").read_text())["accuracy_time"]
     held = [names[4], names[12]]  # material.stages.check_views(16, 8)
     assert series["source"] == "every 8th view" and series["held_out_views"] == held and series["fitted_views"] == 14
@@ -115,7 +117,7 @@ def test_the_score_follows_the_material_and_too_few_views_are_not_held_out(plain
     from backend.capture.load import load_capture
     from backend.geometry.mesh import load_mesh
     from backend.material import factory
-    from backend.optimize import accuracy
+    from backend.planning import tracking as accuracy
 
     capture = load_capture(plain_capture)
     config = ReconstructConfig(track_accuracy=True, max_size=32)
@@ -142,7 +144,7 @@ def test_the_score_follows_the_material_and_too_few_views_are_not_held_out(plain
 
 
 def test_a_time_budget_says_what_the_next_level_was_expected_to_buy():
-    from backend.optimize.accuracy import next_level
+    from backend.optimize.convergence import next_level
     from backend.optimize.records import LevelRecord
 
     levels = [LevelRecord(level=k, size=s, faces=100, iterations=40, loss_start=0.02, loss=0.015, step_final=1.0,

@@ -1,4 +1,4 @@
-"""The accuracy probe and the predicted held-out PSNR (optimize/forecast.py), on real renders:
+"""The accuracy probe and the predicted held-out PSNR (planning/accuracy_forecast.py), on real renders:
 the probe's figure is the tracker's, on a copy of the capture; the prediction is probe + gain;
 a run's ``preset`` event and ``--plan`` carry it."""
 
@@ -8,7 +8,7 @@ import dataclasses
 import json
 import pytest
 
-from backend.optimize import forecast
+from backend.planning import accuracy_forecast as forecast
 from tests.helpers import run_cli
 
 
@@ -85,7 +85,7 @@ def test_the_line_in_the_probe_is_recorded_not_used(tmp_path):
 def test_a_capture_scored_finer_than_the_calibrations_gets_a_floor_not_a_spread(tmp_path):
     """The gain holds at the sizes it was calibrated at; a probe scored at a finer size says so
     (a floor, "21+ dB"), a coarser one drops the spread."""
-    from backend.optimize.plan import psnr_text
+    from backend.planning.time_plan import psnr_text
 
     path = tmp_path / "forecast.json"
     captures = {"a": {"gain_db": 3.0, "probe_size": 48}, "b": {"gain_db": 2.0, "probe_size": 64}}
@@ -199,7 +199,7 @@ def test_plan_and_preset_event_carry_the_predicted_psnr(tiny_capture, tmp_path):
 def test_a_failing_probe_leaves_the_run_without_a_prediction():
     """The run goes on without a predicted PSNR, and says why."""
     from backend.errors import InputError
-    from backend.optimize.job import safe_probe
+    from backend.planning.job import safe_probe
 
     def failing(capture, config, held, mesh):
         raise InputError(None, "the visual hull is empty", "check the masks")

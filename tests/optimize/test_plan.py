@@ -1,4 +1,4 @@
-"""The plan (optimize/plan.py): the cost model's pieces, then ``reconstruct --plan`` and the
+"""The plan (planning/time_plan.py): the cost model's pieces, then ``reconstruct --plan`` and the
 ``preset`` event on a tiny synthetic capture (6 views at 32 px, real step timings)."""
 
 from __future__ import annotations
@@ -8,9 +8,9 @@ from pathlib import Path
 
 import pytest
 
-from backend.optimize import plan
+from backend.planning import time_plan as plan
 from backend.optimize.config import ReconstructConfig
-from backend.optimize.presets import PRESETS, calibrated
+from backend.planning.presets import PRESETS, calibrated
 from tests.helpers import run_cli
 
 
@@ -138,7 +138,7 @@ def test_a_capture_is_promised_the_figures_of_its_kind_of_lighting(tmp_path):
     HDR-lit scene's; a file without kinds (older format): the top level for point lights only."""
     from types import SimpleNamespace
 
-    from backend.optimize.presets import calibrated, calibration_scene, lighting_kind
+    from backend.planning.presets import calibrated, calibration_scene, lighting_kind
 
     lit = SimpleNamespace(environment=object())
     dark = SimpleNamespace(environment=None)

@@ -17,7 +17,7 @@ import pytest
 from backend.geometry.mesh import Mesh, load_mesh, save_mesh
 from backend.geometry.topology import inspect
 from backend.optimize.config import ReconstructConfig
-from backend.optimize.presets import PRESETS, calibrated, preset_for_budget
+from backend.planning.presets import PRESETS, calibrated, preset_for_budget
 from backend.synth.procedural import icosphere
 from tests.helpers import REPO, run_cli
 
@@ -110,7 +110,7 @@ def test_snapshots_thin_out_when_writing_them_is_slow():
     from backend import variant
 
     variant.choose(None)
-    from backend.optimize.run import snapshot_interval
+    from backend.optimize.run_folder import snapshot_interval
 
     config = ReconstructConfig()
     assert snapshot_interval(config, 0.01) == config.snapshot_every_s
@@ -321,7 +321,7 @@ def test_existing_run_folder_needs_resume_or_overwrite(capture, tmp_path):
 
 def test_staged_material_runs_grow_faces_faster_unless_told_otherwise():
     from backend.cli import build_parser
-    from backend.optimize.job import config_from_args
+    from backend.planning.job import config_from_args
     from backend.optimize.config import STAGED_FACE_GROWTH
 
     def config(*options):
@@ -337,7 +337,7 @@ def test_staged_material_runs_grow_faces_faster_unless_told_otherwise():
 def test_the_recorded_command_names_absolute_paths(tmp_path, monkeypatch):
     """command.json must resume from any working folder (the add-on's is the repository)."""
     from backend.cli import build_parser
-    from backend.optimize.job import absolute_paths
+    from backend.planning.job import absolute_paths
 
     (tmp_path / "start.ply").write_text("ply")
     monkeypatch.chdir(tmp_path)
@@ -401,7 +401,7 @@ def test_settings_variable_is_checked(capture, tmp_path):
 
 def test_a_capture_with_no_light_is_refused_and_env_lights_it(capture, tmp_path):
     # with --lighting none: by default such a capture's lighting is estimated
-    # (tests/lighting/test_estimate.py)
+    # (tests/lighting/test_estimated_map.py)
     dark = tmp_path / "dark"
     import shutil
 
@@ -429,7 +429,7 @@ def test_a_capture_with_no_light_is_refused_and_env_lights_it(capture, tmp_path)
     assert lights["enabled"]["emitters"] == ["environment"], lights
     promise = next(e for e in events(run) if e["event"] == "preset")
     # never the point-lit dragon's figures: those of the HDR-lit calibration scene, or none
-    from backend.optimize.presets import calibrated, calibration_scene
+    from backend.planning.presets import calibrated, calibration_scene
 
     assert promise["lighting_kind"] == "environment" and promise["calibrated_on"] == calibration_scene("environment")
     hdr = calibrated(kind="environment").get(promise["preset"], {})

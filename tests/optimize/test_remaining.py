@@ -1,4 +1,4 @@
-"""The time left (optimize/remaining.py): the plan's phases, a run replayed through them at
+"""The time left (planning/remaining.py): the plan's phases, a run replayed through them at
 the planned pace, a slower one, a budget; then a real staged run's progress events."""
 
 from __future__ import annotations
@@ -7,10 +7,10 @@ import json
 
 import pytest
 
-from backend.optimize import plan
+from backend.planning import time_plan as plan
 from backend.optimize.config import ReconstructConfig
-from backend.optimize.presets import PRESETS
-from backend.optimize.remaining import END_S, Phase, Remaining
+from backend.planning.presets import PRESETS
+from backend.planning.remaining import END_S, Phase, Remaining
 from tests.helpers import run_cli
 
 COSTS = plan.StepCosts([plan.Point(32, 1024, 500, 0.02, 0.01, 0.015), plan.Point(64, 4096, 500, 0.05, 0.02, 0.03),
@@ -153,7 +153,7 @@ def test_a_staged_runs_progress_counts_down_through_the_material_stages(tmp_path
 def test_a_resumed_run_carries_the_phases_done_and_their_pace(tmp_path):
     """--resume: the plan of the process that began the run, its events replayed (a line cut
     short by the crash skipped); the level it was in starts again, found by its number."""
-    from backend.optimize.remaining import resumed
+    from backend.planning.remaining import resumed
 
     events, _ = simulate(PHASES, step_scale=2.0)
     cut = next(i for i, (t, e, f) in enumerate(events) if e == "progress" and f["stage"] == "geometry"

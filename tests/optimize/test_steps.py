@@ -8,7 +8,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from backend.optimize.schedule import Plateau, keeps_improving, level_size
+from backend.optimize.convergence import Plateau, keeps_improving, level_size
 from backend.optimize.steps import Adam, LaplacianSystem, VertexOptimizer, clip_outliers, finite
 from backend.synth.procedural import icosphere
 

@@ -28,6 +28,7 @@ import shutil
 import sys
 from pathlib import Path
 
+from .. import _records
 from ... import fsio, variant
 from ...errors import InputError
 from .cases import case_names, guarded, isolated, run_case, table  # noqa: F401
@@ -67,6 +68,13 @@ def run(args) -> int:
     print("caught: steps the loop skipped and reported (a non-finite loss, gradient or vertex position, "
           "or a step that would put a camera inside the mesh)")
     passed = sum(r["passed"] for r in records)
+    _records.write_record(
+        "stability", title="Numerical stability", variant=variant.choose(args.variant),
+        context="hard cases through the real pipeline (extreme materials and views, degenerate meshes, NaN gradients, "
+                "a killed run, a full disk), each checked for finite values and valid meshes",
+        rows=[{"case": r["case"], "passed": "yes" if r["passed"] else "no", "seconds": r.get("seconds")}
+              for r in records], scalars={"passed": passed, "cases": len(records)},
+        failed=[r["case"] for r in records if not r["passed"]], display="scalars" if passed == len(records) else None)
     print(f"\n{passed}/{len(records)} passed" + ("" if args.quick else "; peak GB per case, each in its own process")
           + (" (peak GB: this process so far)" if args.quick else ""))
     return 0 if passed == len(records) else 1

@@ -10,7 +10,6 @@ import resource
 import shutil
 import signal
 import subprocess
-import sys
 import threading
 import time
 from pathlib import Path
@@ -19,28 +18,24 @@ import numpy as np
 
 from ...geometry.mesh import load_mesh, save_mesh
 from ...geometry.topology import inspect
+from .. import _launch
 from .checks import read_events, run_folder_problems, temporary_files
 from .results import KNOWN, REPO, Result
 from .scenes import lit_blob, sphere_init, torus_init
 
 
 # -- process faults ------------------------------------------------------------------------------------------
-def _env() -> dict:
-    return dict(os.environ, PYTHONPATH=str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", ""),
-                PYTHONUNBUFFERED="1")
-
-
 def _reconstruct_args(capture: Path, run: Path, init: Path, faces: int, iterations: int) -> list[str]:
-    return [sys.executable, "-m", "backend", "reconstruct", str(capture), "--out", str(run), "--init", str(init),
-            "--initial-faces", str(faces), "--max-size", "32", "--coarse-size", "32", "--spp", "2",
-            "--iterations", str(iterations), "--max-levels", "2", "--material", KNOWN, "--remesh", "never"]
+    return _launch.backend("reconstruct", capture, "--out", run, "--init", init, "--initial-faces", faces,
+                           "--max-size", 32, "--coarse-size", 32, "--spp", 2, "--iterations", iterations,
+                           "--max-levels", 2, "--material", KNOWN, "--remesh", "never")
 
 
 def _kill_at_write(args: list[str], run: Path, after_snapshots: int, timeout: float = 300) -> bool:
     """Start the backend and SIGKILL it the moment it starts an atomic write (a new temporary
     file appears in the run folder) once ``after_snapshots`` snapshot events have come. False
     if it ended first."""
-    proc = subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True, env=_env(), cwd=REPO)
+    proc = _launch.popen(args, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
     snapshots = []
     reader = threading.Thread(target=lambda: snapshots.extend(line for line in proc.stdout if '"snapshot"' in line),
                               daemon=True)
@@ -89,9 +84,9 @@ def killed_mid_write(work: Path, quick: bool) -> Result:
         leftovers = len(temporary_files(run))
         for problem in run_folder_problems(run):
             result.problems.append(f"after kill {kills}: {problem}")
-    proc = subprocess.run(_reconstruct_args(capture, run, work / "init.ply", faces, iterations)
-                          + (["--resume"] if (run / "state" / "state.json").exists() else ["--overwrite"]),
-                          capture_output=True, text=True, env=_env(), cwd=REPO, timeout=600)
+    proc = _launch.run(_reconstruct_args(capture, run, work / "init.ply", faces, iterations)
+                       + (["--resume"] if (run / "state" / "state.json").exists() else ["--overwrite"]),
+                       cwd=REPO, timeout=600)
     result.notes.update(kills=kills, killed_during_a_write=mid_write, temporary_files_left=len(temporary_files(run)))
     result.check(kills >= 2 and mid_write >= 1, f"{kills} kills, {mid_write} during a write: too few to tell")
     if result.check(proc.returncode == 0, f"final run exited {proc.returncode}: {proc.stderr[-300:]}"):
@@ -160,8 +155,8 @@ def full_disk(work: Path, quick: bool) -> Result:
             if not mounted and scenario == "fills_up":
                 result.notes[scenario] = "left out: mounting a tmpfs is not permitted here"
                 continue
-            proc = subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=_env(),
-                                    cwd=REPO, preexec_fn=None if mounted else _limit_file_size(size_kb << 10))
+            proc = _launch.popen(args, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                                 preexec_fn=None if mounted else _limit_file_size(size_kb << 10))
             out = ""
             if scenario == "fills_up":
                 for line in proc.stdout:  # once the run is under way, fill the disk
@@ -186,9 +181,8 @@ def full_disk(work: Path, quick: bool) -> Result:
             if scenario == "fills_up":
                 (folder / "filler").unlink()
                 done = json.loads((run / "state" / "state.json").read_text())["iteration"]
-                resumed = subprocess.run(_reconstruct_args(capture, run, work / "init.ply", 5120, done + 6)
-                                         + ["--resume"], capture_output=True, text=True, env=_env(), cwd=REPO,
-                                         timeout=600)
+                resumed = _launch.run(_reconstruct_args(capture, run, work / "init.ply", 5120, done + 6)
+                                      + ["--resume"], cwd=REPO, timeout=600)
                 result.check(resumed.returncode == 0,
                              f"resume after freeing space: exit {resumed.returncode}: {resumed.stderr[-300:]}")
                 result.problems += [f"after resume: {p}" for p in run_folder_problems(run)]
