@@ -14,6 +14,14 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+from .. import variant
+from ..capture.load import load_capture
+from ..optimize.config import ReconstructConfig
+from ..optimize.views import ViewSet
+from ..planning import time_plan as plan
+from ..planning.accuracy_forecast import predicted_psnr
+from ..planning.presets import calibrated
+from ..planning.remaining import Remaining
 from .sweep import load_history
 
 
@@ -24,12 +32,6 @@ def replan(run: Path, capture: Path) -> tuple[float, dict, dict]:
     """Predicted minutes of the run in ``run`` (its events and report) on ``capture``, and the
     errors of its time left at the CHECKPOINTS, replayed (``live_errors``) and as its progress
     events recorded them; the Mitsuba variant must be chosen (``replan_rows`` does)."""
-    from ..capture.load import load_capture
-    from ..planning import time_plan as plan
-    from ..optimize.config import ReconstructConfig
-    from ..planning.presets import calibrated
-    from ..optimize.views import ViewSet
-
     events = load_history(run / "events.jsonl")
     preset = next(e for e in events if e["event"] == "preset")
     config = ReconstructConfig(**json.loads((run / "report.json").read_text())["settings"])
@@ -53,8 +55,6 @@ def checkpoints(events: list[dict]) -> tuple[float, float, list[tuple[str, float
 def live_errors(events: list[dict], predicted, budget_s: float | None = None) -> dict:
     """At each of the CHECKPOINTS: the end the time left points to, over the real end, less 1,
     replayed through planning/remaining.py with the phases of ``predicted`` (a PresetPlan)."""
-    from ..planning.remaining import Remaining
-
     start, end, points = checkpoints(events)
     out = {}
     for key, at in points:
@@ -86,9 +86,6 @@ def replan_rows(out: Path, rows: list[dict]) -> list[dict]:
     left at the CHECKPOINTS), ``predicted_psnr`` and ``psnr_error`` from the current model and
     gains; the recorded promises kept as ``recorded_minutes``, ``recorded_eta_error`` and
     ``recorded_psnr``."""
-    from .. import variant
-    from ..planning.accuracy_forecast import predicted_psnr
-
     variant.choose()
     fresh = []
     for row in rows:

@@ -16,6 +16,7 @@ Every capture but ``video`` has held-out views and relit views (under a second s
 
 from __future__ import annotations
 
+import argparse
 import json
 from dataclasses import dataclass
 from pathlib import Path
@@ -27,12 +28,14 @@ from .. import fsio
 from ..capture.format import save_capture
 from ..capture.images import write_image, write_mask
 from ..capture.model import Capture, Environment, Frame
-from ..geometry.mesh import Mesh, save_mesh
+from ..capture.load import load_capture
+from ..geometry.mesh import Mesh, load_mesh, save_mesh
+from ..metrics.geometry import align_similarity
 from ..render.fields import VertexField
 from ..render.scene import RenderSettings, SceneRenderer
 from ..synth import layout, procedural
 from ..synth.capture import SynthSpec, synthesize
-from . import _launch
+from . import _launch, realworld
 from ._data import SHARED_DATA as SHARED
 
 DRAGON = SHARED / "meshes" / "shapefromtracing" / "dragon.obj"  # Y up (standing along +Y)
@@ -181,13 +184,6 @@ def build_video(out: Path, emit, frames: int = 40, size: str = "640x360", sample
     frame by the similarity that maps its solved camera centres onto the rendered ones
     (Umeyama), is written to ``gt/mesh.ply`` and named the capture's ground truth, so runs are
     scored as on the synthetic scenes."""
-    import argparse
-
-    from ..capture.load import load_capture
-    from ..geometry.mesh import load_mesh
-    from ..metrics.geometry import align_similarity
-    from . import realworld
-
     parser = argparse.ArgumentParser()
     realworld.add_arguments(parser)
     args = parser.parse_args(["--out", str(Path(out).parent / "video_orbit"), "--frames", str(frames),

@@ -18,7 +18,11 @@ import os
 from dataclasses import dataclass
 from pathlib import Path
 
+from .. import fsio, variant
+from ..events import null_emitter
+from ..metrics.evaluate import evaluate
 from . import _records
+from ._sweep_scenes import DRAGON, SCENES as BASE, Scene, _synth
 from .sweep import REPO, Setting, code_version, machine, machine_line, reconstruct_child
 
 SCENES = ("blob_env", "dragon_cornell", "corner")
@@ -36,8 +40,6 @@ class EffectsRun(Setting):
 
 
 def _scene_builders():
-    from ._sweep_scenes import DRAGON, SCENES as BASE, Scene, _synth
-
     scenes = dict(BASE)
     scenes["dragon_cornell"] = Scene(
         "dragon_cornell", "the paper's dragon inside a Cornell-style room (the room is not modelled by the "
@@ -48,8 +50,6 @@ def _scene_builders():
 
 
 def _ensure(name: str, root: Path, emit) -> Path:
-    from .. import fsio
-
     folder = root / name
     if not (folder / "capture.json").is_file():
         with fsio.atomic_dir(folder, replace=True) as tmp:
@@ -58,8 +58,6 @@ def _ensure(name: str, root: Path, emit) -> Path:
 
 
 def _score(run: Path, capture: Path) -> dict:
-    from ..metrics.evaluate import evaluate
-
     report = evaluate(run, capture, samples=50_000)
     own = json.loads((run / "report.json").read_text())
     decisions = own.get("effects", [])
@@ -169,9 +167,6 @@ def add_arguments(parser) -> None:
 
 
 def run(args) -> int:
-    from .. import fsio, variant
-    from ..events import null_emitter
-
     variant.choose()  # scenes are synthesised (and runs scored) in this process
     emit = null_emitter()
     path = args.out / "results.json"

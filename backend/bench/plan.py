@@ -44,7 +44,7 @@ from ..planning.accuracy_forecast import GAINS_FILE, fit_line
 from . import _launch, _records
 from ._data import SHARED_DATA
 from ._machine import code_version, machine
-from ._replan import CHECKPOINTS, said_errors
+from ._replan import CHECKPOINTS, replan_rows, said_errors
 from .sweep import REPO, Setting, load_history, reconstruct_child
 
 MESHES = SHARED_DATA / "meshes"
@@ -346,8 +346,6 @@ def _median_spread(gains: list[float]) -> tuple[float, float]:
 
 
 def _replan(args, emit) -> int:
-    from ._replan import replan_rows
-
     source = args.out / "plan.json"
     require(source.is_file(), source, "no finished bench plan here", "run bench plan --out OUT first")
     doc = json.loads(source.read_text())
