@@ -21,7 +21,8 @@ def _set_check_result(context, text: str) -> None:
 
 class SFT_OT_install_backend(JobModal, bpy.types.Operator):
     """Create a private Python environment in the extension's user folder and install the
-    backend's pinned libraries into it (a 340 MB download, 1.1 GB on disk; needs the internet once)"""
+    backend's pinned libraries into it (a 340 MB download, 1.1 GB on disk; needs the internet once).
+    It is built beside the installed one, which it replaces only once it works"""
 
     bl_idname = "sft.install_backend"
     bl_label = "Install Backend"
@@ -55,7 +56,7 @@ class SFT_OT_install_backend(JobModal, bpy.types.Operator):
 
 
 class SFT_OT_install_backend_cancel(CancelJob, bpy.types.Operator):
-    """Stop the installation; the half-made environment is removed"""
+    """Stop the installation; the half-made environment is removed, the installed one kept"""
 
     bl_idname = "sft.install_backend_cancel"
     bl_label = "Cancel Install"
