@@ -34,6 +34,12 @@ class SFT_OT_install_backend(JobModal, bpy.types.Operator):
         return idle(cls, "install")
 
     def start(self, context) -> jobs.Job:
+        if not bpy.app.online_access:
+            err = AddonInputError(None, "Install Backend downloads the backend's libraries (about 340 MB) but Blender "
+                                  "does not allow online access", "allow it in Preferences > System > Network > "
+                                  "Allow Online Access, then press Install Backend again")
+            _set_check_result(context, str(err))
+            raise err
         venv = installed_venv()
         require(venv.parent.is_dir(), venv.parent, "the extension's user folder cannot be created",
                 "check the permissions of Blender's user folder")

@@ -72,6 +72,7 @@ def test_install_backend_button_sets_up_the_automatic_interpreter(context, exten
     venv = preferences.installed_venv()
     assert Path(bpy.utils.extension_path_user(extension.__name__)) in venv.parents
     chosen = prefs.python
+    context.preferences.system.use_online_access = True  # the download needs it (off by default)
     start = time.monotonic()
     assert bpy.ops.sft.install_backend() == {"FINISHED"}
     seconds = time.monotonic() - start
@@ -87,6 +88,28 @@ def test_install_backend_button_sets_up_the_automatic_interpreter(context, exten
     finally:
         prefs.python = chosen
     print(f"Install Backend took {seconds:.0f} s")
+
+
+def test_install_backend_says_how_to_allow_online_access(context, extension):
+    """Blender's Allow Online Access is off: no download is tried, one line says where to turn it on."""
+    prefs = context.preferences.addons[extension.__name__].preferences
+    venv = import_module(f"{extension.__name__}.addon.preferences").installed_venv()
+    system = context.preferences.system
+    allowed = system.use_online_access
+    system.use_online_access = False
+    try:
+        assert not bpy.app.online_access
+        try:
+            bpy.ops.sft.install_backend()
+            raise AssertionError("Install Backend ran without online access")
+        except RuntimeError as err:
+            message = str(err)
+    finally:
+        system.use_online_access = allowed
+    assert "does not allow online access" in message and "Fix:" in message
+    assert "Preferences > System > Network > Allow Online Access" in message
+    assert prefs.check_result.endswith("then press Install Backend again") and "\n" not in prefs.check_result
+    assert not (venv / "INSTALLED").exists() and not venv.with_name(f".{venv.name}.installing").exists()
 
 
 def test_offline_install_fails_with_one_line_and_leaves_nothing(tmp_path):
