@@ -77,10 +77,11 @@ class SFT_SceneSettings(bpy.types.PropertyGroup):
                                description="Minutes for the whole reconstruction: it stops then with the best "
                                            "mesh so far (0: until converged)", update=_plan_stale)
     track_accuracy: BoolProperty(
-        name="Track Accuracy", default=True,
+        name="Track Accuracy", default=False,
         description="Score views the run does not fit every 30 s and draw held-out PSNR against time "
                     "(RUN/accuracy_time.png; scoring time is not charged to the budget). A capture with "
-                    "ground-truth held-out views scores those; otherwise every 8th view is held out of the fit",
+                    "ground-truth held-out views scores those; otherwise every 8th view is held out of the fit, "
+                    "which the reconstruction then lacks",
         update=_plan_stale)
     material: EnumProperty(name="Material", items=MATERIALS, default="FULL",
                            description="What the material model fits", update=_plan_stale)
