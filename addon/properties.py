@@ -102,7 +102,7 @@ class SFT_SceneSettings(bpy.types.PropertyGroup):
                                description="Input frame whose camera the preview uses")
     preview_env: StringProperty(
         name="Other HDR", subtype="FILE_PATH", default="",
-        description="Relight with this environment map instead of the captured lighting")
+        description="Relight with this environment map instead of the run's own lighting")
     preview_env_strength: FloatProperty(name="Strength", default=1.0, min=0.0, soft_max=10.0)
     preview_env_rotation: FloatProperty(name="Rotation Z", default=0.0, soft_min=-180.0, soft_max=180.0,
                                         description="Rotation of the other HDR about Z, degrees")
