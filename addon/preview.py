@@ -55,18 +55,40 @@ def _read_json(path: Path):
         return None
 
 
+def _options(argv: list) -> dict[str, str]:
+    """A command line's ``--name value`` and ``--name=value`` options, the last one of each."""
+    out = {}
+    for i, arg in enumerate(map(str, argv)):
+        if arg.startswith("--") and "=" in arg:
+            name, value = arg.split("=", 1)
+            out[name] = value
+        elif arg.startswith("--") and i + 1 < len(argv):
+            out[arg] = str(argv[i + 1])
+    return out
+
+
 def run_lighting(run_dir: Path | None, setting: str = "CAPTURED") -> dict:
     """What lit a run's fit: ``model`` (captured, estimate or flash), ``frame`` (world, or
     camera for a rig's map), ``file`` (the estimated map), ``intensity`` (the flash's RGB
-    W/sr, None while unknown) and ``light_factor``. Read from RUN/report.json once the run has
-    finished, else from the command line it started with (RUN/command.json) and its last
-    ``lighting`` event (RUN/events.jsonl), else from the Lighting ``setting``. Without a run
-    folder nothing was fitted: the captured lighting."""
-    out = {"model": "captured", "frame": "world", "file": None, "intensity": None, "light_factor": 1.0}
+    W/sr, None while unknown), ``light_factor`` and ``env`` (the map given with ``--env``, as
+    path, strength and rotation_z_deg; None when the capture's own was used). Read from
+    RUN/report.json once the run has finished, else from the command line it started with
+    (RUN/command.json) and its last ``lighting`` event (RUN/events.jsonl), else from the
+    Lighting ``setting``. Without a run folder nothing was fitted: the captured lighting."""
+    out = {"model": "captured", "frame": "world", "file": None, "intensity": None, "light_factor": 1.0, "env": None}
     run = Path(run_dir) if run_dir else None
     if run is None or not run.is_dir():
         return out
     out["model"], out["frame"] = SETTING_MODELS.get(setting, ("captured", "world"))
+    command = _read_json(run / "command.json")
+    argv = command.get("argv") if isinstance(command, dict) else None
+    options = _options(argv) if isinstance(argv, list) else {}
+    if options.get("--env"):
+        try:
+            out["env"] = {"path": Path(options["--env"]), "strength": float(options.get("--env-strength", 1.0)),
+                          "rotation_z_deg": float(options.get("--env-rotation", 0.0))}
+        except ValueError:
+            pass
     report = _read_json(run / "report.json")
     lighting = report.get("lighting") if isinstance(report, dict) else None
     if isinstance(lighting, dict):
@@ -80,17 +102,10 @@ def run_lighting(run_dir: Path | None, setting: str = "CAPTURED") -> dict:
         except (TypeError, ValueError, AttributeError):
             pass
     else:
-        command = _read_json(run / "command.json")
-        argv = command.get("argv") if isinstance(command, dict) else None
         if isinstance(argv, list):
-            chosen = "captured"
-            for i, arg in enumerate(argv):  # the last one counts, as for argparse
-                if arg == "--lighting" and i + 1 < len(argv):
-                    chosen = argv[i + 1]
-                elif str(arg).startswith("--lighting="):
-                    chosen = str(arg).split("=", 1)[1]
             out["model"], out["frame"] = {"estimate": ("estimate", "world"), "rig": ("estimate", "camera"),
-                                          "flash": ("flash", "world")}.get(chosen, ("captured", "world"))
+                                          "flash": ("flash", "world")}.get(options.get("--lighting"),
+                                                                           ("captured", "world"))
         out["file"] = run / ESTIMATED_MAP
         if out["model"] == "flash":
             out["intensity"] = _last_flash_intensity(run / "events.jsonl")
@@ -115,11 +130,13 @@ def _last_flash_intensity(events: Path):
     return None
 
 
-def preview_lighting(info: CaptureInfo, run_dir: Path | None, setting: str, other_env: dict | None = None
-                     ) -> PreviewLighting:
+def preview_lighting(info: CaptureInfo, run_dir: Path | None, setting: str, other_env: dict | None = None,
+                     panel_env: dict | None = None) -> PreviewLighting:
     """The lighting a relit preview renders under: ``other_env`` (another HDR, alone) when
-    given, else the run's own (:func:`run_lighting`; the module docstring). Raises when that
-    lighting cannot be had (a fitted map or flash not written yet, or no light at all)."""
+    given, else the run's own (:func:`run_lighting`; the module docstring). Under captured
+    lighting the map is the run's ``--env``, else ``panel_env`` (the imported map Reconstruct
+    would pass) when there is no run, else the capture's. Raises when that lighting cannot be
+    had (a fitted map or flash not written yet, or no light at all)."""
     if other_env:
         return PreviewLighting(other_env, frame_lights=False, describe=f"under {Path(other_env['path']).name}")
     fitted = run_lighting(run_dir, setting)
@@ -144,7 +161,7 @@ def preview_lighting(info: CaptureInfo, run_dir: Path | None, setting: str, othe
         rig = fitted["frame"] == "camera"
         return PreviewLighting({"path": path, "strength": factor, "rotation_z_deg": 0.0}, camera_fixed=rig,
                                describe="under the run's estimated environment" + (" (on the camera)" if rig else ""))
-    env = info.environment
+    env = fitted["env"] or (panel_env if not run_dir or not Path(run_dir).is_dir() else None) or info.environment
     if env is not None and factor != 1.0:
         env = dict(env, strength=env["strength"] * factor)
     require(env is not None or has_lights, info.root, "the capture has no lighting to render under",

@@ -41,8 +41,12 @@ class SFT_OT_relit_preview(bpy.types.Operator):
             if sft.preview_env:
                 other = {"path": abspath(sft.preview_env), "strength": sft.preview_env_strength,
                          "rotation_z_deg": sft.preview_env_rotation}
+            imported = None  # the map Reconstruct passes under Captured HDR
+            if sft.lighting == "CAPTURED" and sft.env_path:
+                imported = {"path": abspath(sft.env_path), "strength": sft.env_strength,
+                            "rotation_z_deg": sft.env_rotation}
             run = abspath(sft.run_dir) if sft.run_dir else None
-            lighting = preview.preview_lighting(info, run, sft.lighting, other)
+            lighting = preview.preview_lighting(info, run, sft.lighting, other, imported)
             if lighting.env:
                 world.load_environment_image(lighting.env["path"])  # validate before rendering
             base = run if run is not None else info.root

@@ -46,7 +46,8 @@ def _patch_map(path, column: int):
 
 
 def _run(root, mode: str, finished: bool):
-    """A run folder as the backend leaves it under ``mode`` (estimate, rig, flash, captured)."""
+    """A run folder as the backend leaves it under ``mode`` (estimate, rig, flash, captured, or
+    env: captured with the map given on the command line)."""
     root.mkdir()
     if mode == "estimate":  # the light from world -y, the camera's side (u = 0.75)
         _patch_map(root / "environment.exr", 24)
@@ -60,7 +61,10 @@ def _run(root, mode: str, finished: bool):
         (root / "report.json").write_text(json.dumps({"lighting": lighting, "material": {"light_factor": 1.0}}))
     else:
         argv = ["reconstruct", "capture", "--out", str(root)]
-        if mode != "captured":
+        if mode == "env":
+            sky = write_image(root.parent / "sky.exr", np.ones((16, 32, 3), np.float32), True)
+            argv += ["--env", str(sky), "--env-strength", "2", "--env-rotation", "10"]
+        elif mode != "captured":
             argv += ["--lighting", mode]
         (root / "command.json").write_text(json.dumps({"argv": argv}))
         if mode == "flash":
@@ -83,13 +87,14 @@ def _sphere_scene(context, addon, capture, tmp_path):
 
 @pytest.mark.parametrize("mode, finished, setting", [
     ("estimate", True, "ESTIMATE"), ("estimate", False, "ESTIMATE"), ("rig", True, "RIG"),
-    ("rig", False, "RIG"), ("flash", True, "FLASH"), ("flash", False, "FLASH"), ("captured", True, "CAPTURED")])
+    ("rig", False, "RIG"), ("flash", True, "FLASH"), ("flash", False, "FLASH"), ("captured", True, "CAPTURED"),
+    ("env", False, "CAPTURED")])
 def test_relit_preview_renders_under_the_runs_own_lighting(context, addon, tmp_path, mode, finished, setting):
     capture = _capture(tmp_path / "capture", lights=mode == "captured")
     _sphere_scene(context, addon, capture, tmp_path)
     sft = context.scene.sft
     sft.run_dir = str(_run(tmp_path / "run", mode, finished))
-    sft.lighting = "CAPTURED" if mode != "captured" else "ESTIMATE"  # the run's record wins over the panel
+    sft.lighting = "CAPTURED" if mode not in ("captured", "env") else "ESTIMATE"  # the run's record wins
     out = tmp_path / "preview.png"
     assert bpy.ops.sft.relit_preview(filepath=str(out)) == {"FINISHED"}
     render = np.asarray(Image.open(out).convert("RGB")).astype(np.float32)[:, :SIZE] / 255
@@ -100,6 +105,8 @@ def test_relit_preview_renders_under_the_runs_own_lighting(context, addon, tmp_p
     corners[:3, :3] = corners[:3, -3:] = corners[-3:, :3] = corners[-3:, -3:] = True
     if mode in ("flash", "captured"):  # point lights only: no world, a black background
         assert render[corners].max() < 0.02
+    if mode == "env":  # the map of the run's --env is the background, at its strength
+        assert render[corners].min() > 0.9
 
 
 def test_relit_preview_says_when_the_runs_lighting_is_not_there_yet(context, addon, tmp_path):
@@ -115,6 +122,11 @@ def test_relit_preview_says_when_the_runs_lighting_is_not_there_yet(context, add
     expect_error(bpy.ops.sft.relit_preview, "the run has no estimated environment map yet")
     sft.run_dir = ""  # nothing fitted, and the capture has no light of its own
     expect_error(bpy.ops.sft.relit_preview, "the capture has no lighting to render under")
-    other = write_image(tmp_path / "white.exr", np.ones((16, 32, 3), np.float32), True)
-    sft.preview_env = str(other)  # another HDR always renders
+    white = write_image(tmp_path / "white.exr", np.ones((16, 32, 3), np.float32), True)
+    sft.lighting, sft.env_path = "CAPTURED", str(white)  # the imported map Reconstruct would use
+    assert bpy.ops.sft.relit_preview(filepath=str(tmp_path / "imported.png")) == {"FINISHED"}
+    sft.lighting, sft.env_path = "ESTIMATE", ""
+    sft.preview_env = str(white)  # another HDR always renders
     assert bpy.ops.sft.relit_preview(filepath=str(tmp_path / "other.png")) == {"FINISHED"}
+    for name in ("imported.png", "other.png"):
+        assert np.asarray(Image.open(tmp_path / name).convert("RGB"))[:, :SIZE].mean() > 100, name
