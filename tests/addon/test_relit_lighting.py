@@ -24,24 +24,38 @@ CAMERA_TO_WORLD = [[1.0, 0.0, 0.0, 0.0], [0.0, 0.0, -1.0, -4.0], [0.0, 1.0, 0.0,
 FLASH = 20.0  # W/sr
 
 
-def _capture(root, lights: bool):
+def _looking_at_origin(position, up) -> list[list[float]]:
+    """camera_to_world of a camera at ``position`` looking at the origin, rolled toward ``up``."""
+    position = np.asarray(position, float)
+    forward = -position / np.linalg.norm(position)
+    x = np.cross(forward, up)
+    x /= np.linalg.norm(x)
+    m = np.eye(4)
+    m[:3, 0], m[:3, 1], m[:3, 2], m[:3, 3] = x, np.cross(x, forward), -forward, position
+    return m.tolist()
+
+
+TILTED = _looking_at_origin(2.2 * np.array([-1.0, -1.2, 1.0]), [0.6, 0.0, 1.0])  # above, aside, rolled
+
+
+def _capture(root, lights: bool, camera_to_world=CAMERA_TO_WORLD):
     root.mkdir(parents=True)
     (root / "images").mkdir()
     write_image(root / "images" / "0000.png", np.full((SIZE, SIZE, 3), 0.5))
     frame = {"name": "0000", "image": "images/0000.png",
              "camera": {"width": SIZE, "height": SIZE, "fx": 40.0, "fy": 40.0, "cx": SIZE / 2, "cy": SIZE / 2,
-                        "camera_to_world": CAMERA_TO_WORLD}}
+                        "camera_to_world": camera_to_world}}
     if lights:
         frame["lights"] = [{"type": "point", "position": [0.0, -3.0, 1.0], "intensity_w_per_sr": [FLASH] * 3}]
     (root / "capture.json").write_text(json.dumps({"format": "shape-from-tracing-capture", "frames": [frame]}))
     return root
 
 
-def _patch_map(path, column: int):
+def _patch_map(path, column: int, half: int = 4):
     """A black 32 x 16 map with a bright patch about the horizon at ``column`` (wrapping)."""
     pixels = np.zeros((16, 32, 3), np.float32)
-    cols = [(column + k) % 32 for k in range(-4, 5)]
-    pixels[4:12, cols] = 6.0
+    cols = [(column + k) % 32 for k in range(-half, half + 1)]
+    pixels[8 - half:8 + half, cols] = 6.0 * 16 / (2 * half + 1) ** 2
     write_image(path, pixels, True)
 
 
@@ -107,6 +121,23 @@ def test_relit_preview_renders_under_the_runs_own_lighting(context, addon, tmp_p
         assert render[corners].max() < 0.02
     if mode == "env":  # the map of the run's --env is the background, at its strength
         assert render[corners].min() > 0.9
+
+
+def test_a_map_on_the_camera_turns_with_a_tilted_camera(context, addon, tmp_path):
+    """A rig's map lights from the camera whatever its pose: a small patch at the rig's +x
+    (toward the camera) makes the sphere brightest at the centre of its disc."""
+    capture = _capture(tmp_path / "capture", lights=False, camera_to_world=TILTED)
+    _sphere_scene(context, addon, capture, tmp_path)
+    sft = context.scene.sft
+    run = _run(tmp_path / "run", "rig", True)
+    _patch_map(run / "environment.exr", 16, half=1)
+    sft.run_dir, sft.preview_samples = str(run), 16
+    assert bpy.ops.sft.relit_preview(filepath=str(tmp_path / "tilted.png")) == {"FINISHED"}
+    render = np.asarray(Image.open(tmp_path / "tilted.png").convert("L")).astype(np.float32)[:, :SIZE] / 255
+    y, x = np.mgrid[:SIZE, :SIZE] + 0.5
+    weight = render ** 4  # the highlight
+    centroid = np.array([(weight * y).sum(), (weight * x).sum()]) / weight.sum()
+    assert render.max() > 0.3 and np.abs(centroid - SIZE / 2).max() < 1.2, (render.max(), centroid)
 
 
 def test_relit_preview_says_when_the_runs_lighting_is_not_there_yet(context, addon, tmp_path):
