@@ -31,7 +31,8 @@ class SFT_OT_install_backend(JobModal, bpy.types.Operator):
 
     @classmethod
     def poll(cls, context):
-        return idle(cls, "install")
+        # the new environment replaces the installed one: not under a backend run that uses it
+        return idle(cls, "install", "reconstruct", "plan", "solve", "import")
 
     def start(self, context) -> jobs.Job:
         if not bpy.app.online_access:

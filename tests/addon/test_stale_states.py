@@ -1,7 +1,7 @@
 """Stale and wrong states in the sidebar: the Plan line goes when the capture or a setting it
 was measured with changes (and a Plan that finishes after such a change is not shown);
-Reconstruct, Plan and Solve Cameras do not run at once; a capture with point lights switches
-Lighting to them."""
+Reconstruct, Plan and Solve Cameras do not run at once, nor Install Backend under a run; a
+capture with point lights switches Lighting to them."""
 
 from __future__ import annotations
 
@@ -74,7 +74,7 @@ def _running(addon, kind: str, tmp_path):
 
 @pytest.mark.parametrize("kind, refused, message", [
     ("plan", ("reconstruct", "reconstruct_resume", "solve_cameras"), "Plan is measuring the capture"),
-    ("reconstruct", ("plan", "solve_cameras"), "a reconstruction is running"),
+    ("reconstruct", ("plan", "solve_cameras", "install_backend"), "a reconstruction is running"),
     ("solve", ("reconstruct", "reconstruct_resume", "plan"), "the cameras are being solved")])
 def test_reconstruct_plan_and_solve_exclude_each_other(context, addon, tmp_path, kind, refused, message):
     capture = _capture(tmp_path / "capture", lights=False)
