@@ -40,6 +40,14 @@ LIGHTING = (
 def _is_mesh(_self, obj) -> bool:
     return obj.type == "MESH"
 
+
+def _plan_stale(self, _context) -> None:
+    """A setting the Plan line was measured with changed (the capture or a Reconstruct setting
+    on Plan's command line): the line no longer holds, so it goes (Plan measures again)."""
+    if self.plan_text:
+        self.plan_text = ""
+
+
 DEVICES = (
     ("AUTO", "Auto", "GPU when Cycles has one configured, else CPU"),
     ("CPU", "CPU", "Render on the CPU"),
@@ -50,46 +58,51 @@ DEVICES = (
 class SFT_SceneSettings(bpy.types.PropertyGroup):
     capture_dir: StringProperty(
         name="Capture", subtype="DIR_PATH", default="",
-        description="Capture folder: frames, masks and capture.json (set by the importers)")
+        description="Capture folder: frames, masks and capture.json (set by the importers)",
+        update=_plan_stale)
     run_dir: StringProperty(
         name="Run", subtype="DIR_PATH", default="",
         description="Run folder of the last reconstruction (snapshots, result, report)")
     env_path: StringProperty(
         name="Environment", subtype="FILE_PATH", default="",
-        description="HDR environment map of the capture (set by Import Environment Map)")
-    env_strength: FloatProperty(name="Strength", default=1.0, min=0.0, soft_max=10.0)
+        description="HDR environment map of the capture (set by Import Environment Map)", update=_plan_stale)
+    env_strength: FloatProperty(name="Strength", default=1.0, min=0.0, soft_max=10.0, update=_plan_stale)
     env_rotation: FloatProperty(name="Rotation Z", default=0.0, soft_min=-180.0, soft_max=180.0,
-                                description="Environment rotation about Z, degrees")
+                                description="Environment rotation about Z, degrees", update=_plan_stale)
     preset: EnumProperty(name="Quality", items=QUALITY, default="auto",
                          description="Reconstruction quality preset")
     plan_text: StringProperty(name="Plan", default="",
                               description="Each preset's predicted time on this capture (the Plan button)")
     time_budget: FloatProperty(name="Time Budget", default=30.0, min=0.0, soft_max=240.0, precision=0,
                                description="Minutes for the whole reconstruction: it stops then with the best "
-                                           "mesh so far (0: until converged)")
+                                           "mesh so far (0: until converged)", update=_plan_stale)
     track_accuracy: BoolProperty(
-        name="Track Accuracy", default=True,
+        name="Track Accuracy", default=False,
         description="Score views the run does not fit every 30 s and draw held-out PSNR against time "
                     "(RUN/accuracy_time.png; scoring time is not charged to the budget). A capture with "
-                    "ground-truth held-out views scores those; otherwise every 8th view is held out of the fit")
+                    "ground-truth held-out views scores those; otherwise every 8th view is held out of the fit, "
+                    "which the reconstruction then lacks",
+        update=_plan_stale)
     material: EnumProperty(name="Material", items=MATERIALS, default="FULL",
-                           description="What the material model fits")
-    init: EnumProperty(name="Initialisation", items=INITS, default="AUTO", description="The starting mesh")
+                           description="What the material model fits", update=_plan_stale)
+    init: EnumProperty(name="Initialisation", items=INITS, default="AUTO", description="The starting mesh",
+                       update=_plan_stale)
     init_object: PointerProperty(name="Object", type=bpy.types.Object, poll=_is_mesh,
                                  description="Mesh object to start from (empty: the active object)")
     effects: EnumProperty(name="Effects", items=EFFECTS, default="AUTO",
-                          description="Light-transport effects simulated while optimising")
+                          description="Light-transport effects simulated while optimising", update=_plan_stale)
     lighting: EnumProperty(name="Lighting", items=LIGHTING, default="ESTIMATE",
-                           description="Where the light comes from (Import Environment Map switches to Captured HDR)")
+                           description="Where the light comes from (Import Environment Map switches to Captured "
+                                       "HDR, as does importing a capture with point lights)", update=_plan_stale)
     extra_args: StringProperty(
         name="Extra Arguments", default="",
         description="Further command-line options for 'python -m backend reconstruct' (they win over the "
-                    "settings above)")
+                    "settings above)", update=_plan_stale)
     preview_frame: IntProperty(name="Frame", default=0, min=0,
                                description="Input frame whose camera the preview uses")
     preview_env: StringProperty(
         name="Other HDR", subtype="FILE_PATH", default="",
-        description="Relight with this environment map instead of the captured lighting")
+        description="Relight with this environment map instead of the run's own lighting")
     preview_env_strength: FloatProperty(name="Strength", default=1.0, min=0.0, soft_max=10.0)
     preview_env_rotation: FloatProperty(name="Rotation Z", default=0.0, soft_min=-180.0, soft_max=180.0,
                                         description="Rotation of the other HDR about Z, degrees")

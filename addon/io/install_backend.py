@@ -8,10 +8,13 @@ button; stdlib only, bpy-free)::
 and reports JSON-lines events on stdout as the backend does (docs/protocol.md): ``stage``
 (venv, download, install, check), ``progress`` (``fraction``, ``package``), then ``done``
 (``python``: the new interpreter; ``check``: what ``python -m backend check`` said) or
-``error`` (one line with the fix). The environment counts as installed only once the marker
-file ``DIR/INSTALLED`` exists, written last; a failed or cancelled install (SIGTERM) removes
-``DIR`` so nothing half-installed is ever used. Exit codes: 0 done, 1 failed, 2 offline or
-bad input, 130 cancelled."""
+``error`` (one line with the fix). The environment is built beside ``DIR``, in
+``.DIR.installing``, and counts as installed only once its marker file ``INSTALLED`` exists,
+written last; then it replaces ``DIR`` by renames (the previous environment is moved to
+``.DIR.previous`` and removed once the new one is in place). A failed or cancelled install
+(SIGTERM) removes only the folder it was building: an environment already in ``DIR`` stays
+as it was, so a re-install without a network keeps the backend working. Exit codes: 0 done,
+1 failed, 2 offline or bad input, 130 cancelled."""
 
 from __future__ import annotations
 
@@ -40,6 +43,16 @@ def venv_python(venv: Path) -> Path:
     return venv / ("Scripts/python.exe" if sys.platform == "win32" else "bin/python")
 
 
+def staging_folder(venv: Path) -> Path:
+    """Where an install builds the environment that replaces ``venv`` once it works."""
+    return venv.with_name(f".{venv.name}.installing")
+
+
+def previous_folder(venv: Path) -> Path:
+    """Where the replaced environment waits while the new one moves in."""
+    return venv.with_name(f".{venv.name}.previous")
+
+
 def installed_python(venv: Path) -> Path | None:
     """The environment's interpreter once an install finished, else None."""
     python = venv_python(venv)
@@ -53,8 +66,10 @@ class Cancelled(Exception):
 class Installer:
     def __init__(self, venv: Path, requirements: Path, package: Path, base: str = sys.executable):
         self.venv, self.requirements, self.package, self.base = venv, requirements, package, base
+        self.staging = staging_folder(venv)
         self.child: subprocess.Popen | None = None
         self.start = time.monotonic()
+        self.switching = False  # a cancel waits while the new environment moves in
 
     def emit(self, event: str, **fields) -> None:
         print(json.dumps({"event": event, "time": round(time.monotonic() - self.start, 3), **fields}), flush=True)
@@ -67,11 +82,11 @@ class Installer:
         if not self.requirements.is_file():
             self.emit("error", message=f"{self.requirements}: requirements file not found. Fix: reinstall the extension")
             return 2
-        shutil.rmtree(self.venv, ignore_errors=True)
+        shutil.rmtree(self.staging, ignore_errors=True)  # a build an earlier install left
         try:
             self.emit("stage", stage="venv", path=str(self.venv))
-            self._call([self.base, "-m", "venv", str(self.venv)], "venv")
-            python = str(venv_python(self.venv))
+            self._call([self.base, "-m", "venv", str(self.staging)], "venv")
+            python = str(venv_python(self.staging))
             self.emit("stage", stage="download")
             self._pip(python)
             self.emit("stage", stage="check")
@@ -80,22 +95,47 @@ class Installer:
             if not report.get("ok"):
                 missing = ", ".join(m.split(" (")[0] for m in report.get("missing", [])) or "unknown"
                 raise RuntimeError(f"the new interpreter cannot run the backend (missing {missing})")
-            (self.venv / MARKER).write_text(json.dumps({"python": python, "check": report}))
-            self.emit("done", python=python, check=report, seconds=round(time.monotonic() - self.start, 1))
+            final = str(venv_python(self.venv))
+            (self.staging / MARKER).write_text(json.dumps({"python": final, "check": report}))
+            self._switch()
+            self.emit("done", python=final, check=report, seconds=round(time.monotonic() - self.start, 1))
             return 0
         except Cancelled:
-            shutil.rmtree(self.venv, ignore_errors=True)
+            shutil.rmtree(self.staging, ignore_errors=True)
             self.emit("cancelled")
             return 130
         except OfflineError as err:
-            shutil.rmtree(self.venv, ignore_errors=True)
+            shutil.rmtree(self.staging, ignore_errors=True)
             self.emit("error", message=str(err))
             return 2
-        except Exception as err:  # any failure: nothing half-installed stays
-            shutil.rmtree(self.venv, ignore_errors=True)
+        except Exception as err:  # any failure: nothing half-installed stays, the environment in use is kept
+            shutil.rmtree(self.staging, ignore_errors=True)
             self.emit("error", message=f"{err}. Fix: check the log, or choose an interpreter that imports mitsuba "
                                        f"in the preferences")
             return 1
+
+    def _switch(self) -> None:
+        """The checked environment replaces ``venv`` by renames; the previous one is removed
+        only once the new one is in place, and put back if the new one cannot move in."""
+        self.switching = True
+        previous = previous_folder(self.venv)
+        shutil.rmtree(previous, ignore_errors=True)
+        try:
+            if self.venv.exists():
+                try:
+                    self.venv.rename(previous)
+                except OSError as err:
+                    raise RuntimeError(f"cannot replace {self.venv} ({err.strerror}): close the backend runs "
+                                       f"that use it") from None
+            try:
+                self.staging.rename(self.venv)
+            except OSError as err:
+                if previous.exists():
+                    previous.rename(self.venv)
+                raise RuntimeError(f"cannot move the new environment to {self.venv} ({err.strerror})") from None
+            shutil.rmtree(previous, ignore_errors=True)
+        finally:
+            self.switching = False
 
     def _lines(self, argv: list[str]):
         """Run ``argv``, yielding its output lines; raises on a non-zero exit."""
@@ -162,6 +202,8 @@ class Installer:
         raise RuntimeError(f"'python -m backend check' gave no answer: {err.strip()[-300:]}")
 
     def cancel(self, *_args) -> None:
+        if self.switching:  # the new environment is moving in: the install completes
+            return
         if self.child is not None and self.child.poll() is None:
             self.child.kill()
         raise Cancelled
@@ -183,7 +225,8 @@ class OfflineError(Exception):
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--venv", required=True, type=Path, help="folder of the new environment (replaced)")
+    parser.add_argument("--venv", required=True, type=Path,
+                        help="folder of the environment (replaced only once the new one works)")
     parser.add_argument("--requirements", required=True, type=Path)
     parser.add_argument("--package", required=True, type=Path, help="folder holding backend/")
     args = parser.parse_args(argv)

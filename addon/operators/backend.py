@@ -22,7 +22,8 @@ def _set_check_result(context, text: str) -> None:
 
 class SFT_OT_install_backend(JobModal, bpy.types.Operator):
     """Create a private Python environment in the extension's user folder and install the
-    backend's pinned libraries into it (a 340 MB download, 1.1 GB on disk; needs the internet once)"""
+    backend's pinned libraries into it (a 340 MB download, 1.1 GB on disk; needs the internet once).
+    It is built beside the installed one, which it replaces only once it works"""
 
     bl_idname = "sft.install_backend"
     bl_label = "Install Backend"
@@ -31,9 +32,16 @@ class SFT_OT_install_backend(JobModal, bpy.types.Operator):
 
     @classmethod
     def poll(cls, context):
-        return idle(cls, "install")
+        # the new environment replaces the installed one: not under a backend run that uses it
+        return idle(cls, "install", "reconstruct", "plan", "solve", "import")
 
     def start(self, context) -> jobs.Job:
+        if not bpy.app.online_access:
+            err = AddonInputError(None, "Install Backend downloads the backend's libraries (about 340 MB) but Blender "
+                                  "does not allow online access", "allow it in Preferences > System > Network > "
+                                  "Allow Online Access, then press Install Backend again")
+            _set_check_result(context, str(err))
+            raise err
         venv = installed_venv()
         require(venv.parent.is_dir(), venv.parent, "the extension's user folder cannot be created",
                 "check the permissions of Blender's user folder")
@@ -56,7 +64,7 @@ class SFT_OT_install_backend(JobModal, bpy.types.Operator):
 
 
 class SFT_OT_install_backend_cancel(CancelJob, bpy.types.Operator):
-    """Stop the installation; the half-made environment is removed"""
+    """Stop the installation; the half-made environment is removed, the installed one kept"""
 
     bl_idname = "sft.install_backend_cancel"
     bl_label = "Cancel Install"

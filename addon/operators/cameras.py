@@ -24,6 +24,10 @@ def load_cameras(context, info: capture_file.CaptureInfo, show_frames: bool, wit
     create_cameras(context, info, show_frames)
     scene = context.scene
     scene.sft.capture_dir = str(info.root)
+    scene.sft.plan_text = ""  # new cameras: the Plan line measured the old ones
+    lights = sum(len(frame.lights) for frame in info.frames)
+    if lights:  # the capture's own point lights light it
+        scene.sft.lighting = "CAPTURED"
     if env_image is not None:
         if scene.world is None:
             scene.world = bpy.data.worlds.new("SfT World")
@@ -32,7 +36,8 @@ def load_cameras(context, info: capture_file.CaptureInfo, show_frames: bool, wit
         scene.sft.env_path = str(env["path"])
         scene.sft.lighting = "CAPTURED"
         scene.sft.env_strength, scene.sft.env_rotation = env["strength"], env["rotation_z_deg"]
-    return f"{len(info.frames)} cameras from {info.root}" + (", environment lit" if env_image else "")
+    return (f"{len(info.frames)} cameras from {info.root}" + (", environment lit" if env_image else "")
+            + (f", {lights} point lights" if lights else ""))
 
 
 class SFT_OT_import_cameras(bpy.types.Operator, ImportHelper, JobModal):
@@ -108,7 +113,7 @@ class SFT_OT_solve_cameras(JobModal, bpy.types.Operator):
 
     @classmethod
     def poll(cls, context):
-        if not idle(cls, cls.job_kind):
+        if not idle(cls, cls.job_kind, "reconstruct", "plan"):  # they read the capture this rewrites
             return False
         sft = context.scene.sft
         capture = abspath(sft.capture_dir) if sft.capture_dir else None

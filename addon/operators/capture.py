@@ -70,6 +70,7 @@ class SFT_OT_import_video(bpy.types.Operator, ImportHelper):
         except AddonInputError as err:
             return fail(self, err)
         context.scene.sft.capture_dir = str(capture)
+        context.scene.sft.plan_text = ""  # new frames: the Plan line measured the old capture
         self.report({"INFO"}, f"{kept} frames in {capture / fr.IMAGES} ({blurred} blurred skipped)")
         return {"FINISHED"}
 
@@ -141,6 +142,7 @@ class SFT_OT_import_masks(bpy.types.Operator, ImportHelper):
         except AddonInputError as err:
             return fail(self, err)
         target = fr.MATERIALS if self.material else fr.MASKS
+        context.scene.sft.plan_text = ""  # new masks: the Plan line measured the old capture
         self.report({"INFO"}, f"{written} masks in {capture / target}")
         return {"FINISHED"}
 
@@ -254,6 +256,7 @@ class SFT_OT_import_environment(bpy.types.Operator, ImportHelper):
         world.set_environment(scene.world, image, self.strength, self.rotation_z)
         scene.sft.env_path = image.filepath
         scene.sft.lighting = "CAPTURED"
+        scene.sft.plan_text = ""  # another map: the Plan line measured the old lighting
         scene.sft.env_strength = self.strength
         scene.sft.env_rotation = self.rotation_z
         self.report({"INFO"}, f"World lit by {Path(image.filepath).name}")

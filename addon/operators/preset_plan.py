@@ -20,6 +20,7 @@ class PlanJob(jobs.Job):
 
     def __init__(self, python: str, args: list[str], root: Path = interpreter.PACKAGE_DIR):
         self.plan: dict | None = None
+        self.args = list(args)  # the settings measured: a line for others is not shown
         super().__init__(python, args, None, kind="plan", root=root)
 
     def on_events(self, context, events):
@@ -39,6 +40,14 @@ def plan_summary(plan: dict) -> str:
     return f"{plan['line']} on this capture"
 
 
+def _measured_now(context, job: PlanJob) -> bool:
+    """Whether the job measured the scene's capture and settings as they are now."""
+    try:
+        return plan_args(capture_dir(context), context.scene.sft) == job.args
+    except AddonInputError:
+        return False
+
+
 class SFT_OT_plan(JobModal, bpy.types.Operator):
     """Measure what a step costs on this capture and probe its accuracy (seconds), and predict
     each quality preset's time and held-out PSNR on it; nothing is reconstructed"""
@@ -50,7 +59,7 @@ class SFT_OT_plan(JobModal, bpy.types.Operator):
 
     @classmethod
     def poll(cls, context):
-        if not idle(cls, "plan", "reconstruct"):
+        if not idle(cls, "plan", "reconstruct", "solve"):
             return False
         sft = context.scene.sft
         if not sft.capture_dir:
@@ -74,6 +83,10 @@ class SFT_OT_plan(JobModal, bpy.types.Operator):
 
     def finish(self, context, job: PlanJob):
         sft = context.scene.sft
+        if job.plan is not None and not _measured_now(context, job):
+            sft.plan_text = ""
+            self.report({"WARNING"}, "Plan: the capture or the settings changed while it measured; press Plan again")
+            return {"CANCELLED"}
         if job.plan is None:
             sft.plan_text = ""
             self.report({"ERROR"}, f"Plan {job.state.status}: {job.state.message}")

@@ -10,8 +10,9 @@ from .common import Busy, abspath, capture_dir, fail, poll_reconstruction
 
 
 class SFT_OT_relit_preview(bpy.types.Operator):
-    """Render the reconstruction in Cycles from an input frame's camera, under the captured
-    lighting or another HDR, and show it beside that frame"""
+    """Render the reconstruction in Cycles from an input frame's camera, under the lighting its
+    run fitted (the captured lights, the estimated map or the fitted flash) or another HDR,
+    and show it beside that frame"""
 
     bl_idname = "sft.relit_preview"
     bl_label = "Relit Preview"
@@ -37,26 +38,31 @@ class SFT_OT_relit_preview(bpy.types.Operator):
             obj = bpy.data.objects.get(self.object_name)
             require(obj is not None and obj.type == "MESH" and len(obj.data.polygons) > 0, None,
                     f"no mesh object '{self.object_name}' to render", "run Reconstruct first")
+            other = None
             if sft.preview_env:
-                env = {"path": abspath(sft.preview_env), "strength": sft.preview_env_strength,
-                       "rotation_z_deg": sft.preview_env_rotation}
-            else:
-                env = info.environment
-            if env:
-                world.load_environment_image(env["path"])  # validate before rendering
-            base = abspath(sft.run_dir) if sft.run_dir else info.root
+                other = {"path": abspath(sft.preview_env), "strength": sft.preview_env_strength,
+                         "rotation_z_deg": sft.preview_env_rotation}
+            imported = None  # the map Reconstruct passes under Captured HDR
+            if sft.lighting == "CAPTURED" and sft.env_path:
+                imported = {"path": abspath(sft.env_path), "strength": sft.env_strength,
+                            "rotation_z_deg": sft.env_rotation}
+            run = abspath(sft.run_dir) if sft.run_dir else None
+            lighting = preview.preview_lighting(info, run, sft.lighting, other, imported)
+            if lighting.env:
+                world.load_environment_image(lighting.env["path"])  # validate before rendering
+            base = run if run is not None else info.root
             out = abspath(self.filepath) if self.filepath else base / "preview" / f"{frame.name}.png"
             rendered = out.with_name(f"{out.stem}_render.png")
             out.parent.mkdir(parents=True, exist_ok=True)
             with Busy(context, f"Relit Preview ({sft.preview_samples} samples)") as busy:
-                preview.render(context, obj, info, sft.preview_frame, env, not sft.preview_env,
-                               sft.preview_samples, sft.preview_percentage, sft.device, rendered)
+                preview.render(context, obj, info, sft.preview_frame, lighting, sft.preview_samples,
+                               sft.preview_percentage, sft.device, rendered)
                 busy(0.9)
                 width, height = preview.side_by_side(rendered, frame.image, out)
         except AddonInputError as err:
             return fail(self, err)
         preview.show(out)
-        self.report({"INFO"}, f"relit preview {width}x{height}: {out}")
+        self.report({"INFO"}, f"relit preview {width}x{height} {lighting.describe}: {out}")
         return {"FINISHED"}
 
 

@@ -94,8 +94,11 @@ def resumable(run_dir: str) -> bool:
     return True
 
 
+EXCLUDES = ("reconstruct", "plan", "solve")  # a run does not start while the capture is measured or solved
+
+
 def _poll_reconstruct(cls, context) -> bool:
-    if not idle(cls, "reconstruct"):
+    if not idle(cls, *EXCLUDES):
         return False
     sft = context.scene.sft
     if not sft.capture_dir:
@@ -206,8 +209,7 @@ class SFT_OT_reconstruct_resume(_ReconstructModal, bpy.types.Operator):
 
     @classmethod
     def poll(cls, context):
-        job = jobs.ACTIVE.get("reconstruct")
-        return not (job is not None and job.running)
+        return idle(cls, *EXCLUDES)
 
     def start(self, context) -> jobs.Job:
         chosen = self.run_dir or context.scene.sft.run_dir

@@ -1,5 +1,6 @@
 """Panels Capture / Cameras / Reconstruct / Preview in the sidebar tab "Shape from Tracing"."""
 
+import json
 from pathlib import Path
 
 import bpy
@@ -15,6 +16,30 @@ class _Panel:
     bl_space_type = "VIEW_3D"
     bl_region_type = "UI"
     bl_category = CATEGORY
+
+
+_LIGHTS: dict[str, tuple[int, int]] = {}  # capture.json path -> (mtime_ns, point lights)
+
+
+def capture_lights(capture_dir: str) -> int:
+    """How many point lights the scene's capture.json gives its frames (read again only when
+    the file changes: panels draw often)."""
+    if not capture_dir:
+        return 0
+    path = Path(bpy.path.abspath(capture_dir)) / "capture.json"
+    try:
+        stamp = path.stat().st_mtime_ns
+    except OSError:
+        return 0
+    cached = _LIGHTS.get(str(path))
+    if cached is None or cached[0] != stamp:
+        try:
+            frames = json.loads(path.read_text()).get("frames") or []
+            count = sum(len(f.get("lights") or []) for f in frames if isinstance(f, dict))
+        except (OSError, ValueError, AttributeError, TypeError):
+            count = 0
+        cached = _LIGHTS[str(path)] = (stamp, count)
+    return cached[1]
 
 
 def _draw_job(layout, job: jobs.Job | None, cancel: str | None = None) -> bool:
@@ -146,6 +171,9 @@ class SFT_PT_reconstruct(_Panel, bpy.types.Panel):
         elif sft.env_path:
             col.label(text=f"Lighting: {Path(sft.env_path).name} x{sft.env_strength:g} {sft.env_rotation:g}°",
                       icon="WORLD_DATA")
+        elif capture_lights(sft.capture_dir):
+            col.label(text=f"Lighting: the capture's point lights ({capture_lights(sft.capture_dir)})",
+                      icon="LIGHT_POINT")
         else:
             col.label(text="No lighting: Import Environment Map", icon="ERROR")
         if not running:

@@ -1,4 +1,4 @@
-"""Track Accuracy in the add-on: the run is asked to track it, and the curve the backend redraws
+"""Track Accuracy in the add-on (off by default): the run is asked to track it, and the curve the backend redraws
 (RUN/accuracy_time.png) reaches the Reconstruct panel on every ``accuracy`` event."""
 
 from __future__ import annotations
@@ -30,13 +30,15 @@ def draw(context) -> list:
     return log
 
 
-def test_track_accuracy_is_on_by_default_and_asks_the_backend(context, extension):
+def test_track_accuracy_is_off_by_default_and_asks_the_backend_when_on(context, extension):
+    """Off by default: it holds every 8th view out of the fit (a capture without held-out views)."""
     reconstruct = import_module(f"{extension.__name__}.addon.operators.reconstruct")
     sft = context.scene.sft
-    assert sft.track_accuracy and "--track-accuracy" in reconstruct.method_args(sft)
-    sft.track_accuracy = False
-    assert "--track-accuracy" not in reconstruct.method_args(sft)
+    assert not sft.track_accuracy and "--track-accuracy" not in reconstruct.method_args(sft)
+    assert ("prop", "track_accuracy") in draw(context)  # still in the panel
     sft.track_accuracy = True
+    assert "--track-accuracy" in reconstruct.method_args(sft)
+    sft.track_accuracy = False
 
 
 def test_the_panel_curve_is_updated_in_place_from_accuracy_events(context, addon, tmp_path):

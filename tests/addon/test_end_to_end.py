@@ -71,10 +71,11 @@ def test_real_reconstruction_streams_mesh_and_colours(context, addon, extension,
 def test_reconstruct_operator_runs_headless_path(context, tiny_capture, tmp_path):
     sft = context.scene.sft
     sft.capture_dir, sft.preset, sft.extra_args = str(tiny_capture), "draft", TINY
+    sft.track_accuracy = True
     assert bpy.ops.sft.reconstruct(run_dir=str(tmp_path / "run")) == {"FINISHED"}
     assert sft.run_dir == str(tmp_path / "run")
     assert len(bpy.data.objects["Reconstruction"].data.polygons) > 0
-    # Track Accuracy is on by default: the capture's ground-truth held-out views were scored
+    # Track Accuracy on: the capture's ground-truth held-out views were scored
     series = json.loads((tmp_path / "run" / "report.json").read_text())["accuracy_time"]
     assert series["source"] == "ground truth" and series["points"]
     assert (tmp_path / "run" / "accuracy_time.png").is_file()

@@ -16,6 +16,10 @@ def test_manifest_passes_blenders_validator():
     proc = blender_ext("validate", "--valid-tags", str(VALID_TAGS), str(REPO))
     assert proc.returncode == 0, proc.stdout + proc.stderr
     assert "Success" in proc.stdout
+    import tomllib
+
+    permissions = tomllib.loads((REPO / "blender_manifest.toml").read_text())["permissions"]
+    assert "340 MB" in permissions["network"], "Install Backend's download needs the network permission"
 
 
 def test_zip_holds_addon_and_backend_only(built_zip):
