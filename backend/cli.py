@@ -14,6 +14,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import sys
+import time
 
 from . import __version__, interrupt, variant
 from .errors import EXIT_BAD_INPUT, InputError
@@ -62,6 +63,7 @@ def build_parser(argv: list[str]) -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    started = time.perf_counter()  # a command's time budget counts from here (backend.optimize.budget)
     argv = sys.argv[1:] if argv is None else argv
     interrupt.install()
     try:
@@ -76,6 +78,7 @@ def main(argv: list[str] | None = None) -> int:
         parser.print_help()
         return 0 if not argv else EXIT_BAD_INPUT
     args.argv = argv  # the command line as given (reconstruct records it for a later resume)
+    args.started = started
     try:
         return int(args.func(args) or 0)
     except InputError as err:

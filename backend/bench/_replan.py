@@ -33,7 +33,7 @@ def replan(run: Path, capture: Path) -> tuple[float, dict, dict]:
     errors of its time left at the CHECKPOINTS, replayed (``live_errors``) and as its progress
     events recorded them; the Mitsuba variant must be chosen (``replan_rows`` does)."""
     events = load_history(run / "events.jsonl")
-    preset = next(e for e in events if e["event"] == "preset")
+    preset = planned(events)
     config = ReconstructConfig(**json.loads((run / "report.json").read_text())["settings"])
     viewset = ViewSet(load_capture(capture), config.max_size)
     costs = plan.StepCosts([plan.Point(**p) for p in preset["plan"]["costs"]["points"]])
@@ -44,10 +44,16 @@ def replan(run: Path, capture: Path) -> tuple[float, dict, dict]:
     return round(predicted.minutes, 2), live_errors(events, predicted, config.time_budget_s), said_errors(events)
 
 
+def planned(events: list[dict]) -> dict:
+    """The run's ``preset`` event that carries its plan (a run announces the preset at once, and
+    again with the plan once its first level has ended)."""
+    return next(e for e in reversed(events) if e["event"] == "preset" and e.get("plan"))
+
+
 def checkpoints(events: list[dict]) -> tuple[float, float, list[tuple[str, float]]]:
     """The times of the run's ``preset`` event and of its last event, and for each of the
     CHECKPOINTS (a share of the time between them) the share as a key and its time."""
-    start = next(e["time"] for e in events if e["event"] == "preset")
+    start = planned(events)["time"]
     end = events[-1]["time"]
     return start, end, [(str(share), start + share * (end - start)) for share in CHECKPOINTS]
 

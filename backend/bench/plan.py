@@ -134,7 +134,8 @@ def measure(name: str, capture: Path, preset: str, out: Path, variant: str | Non
     if timing["rc"] != 0:
         return row
     events = load_history(run / "events.jsonl")
-    promise = next(e for e in events if e["event"] == "preset")
+    promise = next((e for e in reversed(events) if e["event"] == "preset" and e.get("plan")),
+                   next(e for e in events if e["event"] == "preset"))  # the one with the plan, when there is one
     effects = next((e for e in events if e["event"] == "effects"), {})
     report = json.loads((run / "report.json").read_text())
     f1 = (report.get("metrics") or {}).get("f1@0.01")

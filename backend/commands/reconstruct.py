@@ -90,7 +90,7 @@ def add_arguments(parser):
                         help="with ground truth: metrics after every level (time not charged to the budget)")
     parser.add_argument("--track-accuracy", action="store_true",
                         help="score held-out views every 30 s of run time and at every level's and stage's end "
-                             "(time not charged to the budget): accuracy events, report.json accuracy_time and "
+                             "(charged to the budget): accuracy events, report.json accuracy_time and "
                              "RUN/accuracy_time.png. The capture's ground-truth held-out views when it has them, "
                              "else every 8th view (--held-out-every), which is then not fitted")
     parser.add_argument("--held-out-every", type=int, metavar="K",

@@ -1,6 +1,12 @@
-"""``Budget``: the run's clock and every limit on it: the time budget, the iteration cap, and
-the shares of the time held back for the material stages on the final geometry and for what
-follows the polish rounds (staged materials only)."""
+"""``Budget``: the run's clock and every limit on it: the time budget, the iteration cap, the
+shares of the time held back for the material stages on the final geometry and for what
+follows the polish rounds (staged materials only), and the seconds held back for writing the
+results.
+
+The budget is the wall clock of the whole command: the clock starts when the command starts
+(``started``), so loading, the capture written from a video, initialisation, the plan, the
+held-out scoring, re-meshes and the results all count. Only metrics against a ground-truth
+mesh (``--track-metrics``, a benchmark's instrument) are left out (``uncharged``)."""
 
 from __future__ import annotations
 
@@ -16,6 +22,11 @@ from .records import RunState
 GEOMETRY_RESERVE = 0.4
 POLISH_RESERVE = 0.05
 POLISH_RESERVE_CYCLES = 1.75
+# the results (the last snapshot, result.ply, the textures and result.glb, report.json) are
+# written after the budget's last step: held back as this many times the last snapshot's
+# seconds, and at least FINISH_MIN_S
+FINISH_SNAPSHOTS = 3.0
+FINISH_MIN_S = 2.0
 
 
 def polish_share(last_cycle_seconds: float | None, budget_s: float | None) -> float:
@@ -28,15 +39,21 @@ def polish_share(last_cycle_seconds: float | None, budget_s: float | None) -> fl
 
 
 class Budget:
-    """The clock: seconds since the start, plus those of the runs this one resumes, less the
-    time spent on tracking metrics (not charged to the budget). ``staged``: whether a material
-    schedule runs (the reserves apply only then)."""
+    """The clock: seconds since ``started`` (a ``time.perf_counter()`` reading: the command's
+    start; default now), plus those of the runs this one resumes, less the time spent on
+    metrics against the ground truth (not charged). ``staged``: whether a material schedule
+    runs (the reserves apply only then)."""
 
-    def __init__(self, config, state: RunState, staged: bool):
+    def __init__(self, config, state: RunState, staged: bool, started: float | None = None):
         self.config, self.state, self.staged = config, state, staged
-        self.t0 = time.perf_counter()
+        self.t0 = time.perf_counter() if started is None else started
         self.excluded = 0.0
         self.remaining = None  # planning.remaining.Remaining, once the run has a plan
+        self.snapshot_s = 0.0  # what the last snapshot took to write
+
+    def finish_s(self) -> float:
+        """Seconds held back for writing the results once the last step has run."""
+        return max(FINISH_MIN_S, FINISH_SNAPSHOTS * self.snapshot_s)
 
     def elapsed(self) -> float:
         return self.state.seconds_before + time.perf_counter() - self.t0 - self.excluded
@@ -71,7 +88,7 @@ class Budget:
         """Whether the run is out of time or steps; ``reserve``: the share of the time budget
         held back (``geometry_reserve``, ``polish_reserve``)."""
         c = self.config
-        return bool((c.time_budget_s and self.elapsed() >= c.time_budget_s * (1.0 - reserve))
+        return bool((c.time_budget_s and self.elapsed() >= c.time_budget_s * (1.0 - reserve) - self.finish_s())
                     or (c.iterations and self.state.iteration >= c.iterations))
 
     def out_of_iterations(self) -> bool:
@@ -80,7 +97,7 @@ class Budget:
     def fits(self, seconds: float) -> bool:
         """Whether work of ``seconds`` still ends within the time budget."""
         budget = self.config.time_budget_s
-        return not (budget and self.elapsed() + seconds > budget)
+        return not (budget and self.elapsed() + seconds + self.finish_s() > budget)
 
     def geometry_reserve(self) -> float:
         """The share the geometry levels leave to the material stages on the final geometry."""

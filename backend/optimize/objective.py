@@ -3,6 +3,10 @@ through a log tone curve (the reasons: ``Objective``)."""
 
 from __future__ import annotations
 
+import time
+from collections import defaultdict
+from contextlib import contextmanager, nullcontext
+
 import drjit as dr
 import mitsuba as mi
 import numpy as np
@@ -26,6 +30,24 @@ class GradientRenderer(SceneRenderer):
     def render_split(self, view: int, seed: int, params):
         self._set_lights(view)
         return mi.render(self.scene, params, sensor=self.sensors[view], seed=seed, spp=0)
+
+
+class StepTimer:
+    """Seconds of a step's parts, summed over the steps timed: each part ends in a sync, so
+    the work a part launches is charged to it (the syncs change the overlap between parts,
+    not their work). ``Objective.timer`` takes one; ``bench steps`` prints the split."""
+
+    def __init__(self):
+        self.seconds: dict[str, float] = defaultdict(float)
+
+    @contextmanager
+    def part(self, name: str):
+        start = time.perf_counter()
+        try:
+            yield
+        finally:
+            dr.sync_thread()
+            self.seconds[name] += time.perf_counter() - start
 
 
 def tone_scale(views: list[View]) -> float:
@@ -58,6 +80,10 @@ class Objective:
         self.scale = tone_scale(views) if tone == "log" else None
         self.targets = [mi.TensorXf(np.ascontiguousarray(self._tone_np(v.target), np.float32)) for v in views]
         self.targets_np = [self._tone_np(np.asarray(v.target, np.float32)) for v in views]
+        self.timer: StepTimer | None = None  # times the parts of each gradient step when set
+
+    def _part(self, name: str):
+        return nullcontext() if self.timer is None else self.timer.part(name)
 
     def _tone(self, img):
         return img if self.scale is None else dr.log(1.0 + dr.maximum(img, 0.0) * (1.0 / self.scale))
@@ -80,10 +106,11 @@ class Objective:
                       material: bool = True) -> tuple[float, np.ndarray | None, dict[str, np.ndarray]]:
         """Mean masked MSE over ``view_ids`` and its gradients: (loss, dLoss/dvertices (V, 3),
         {trainable material latent: gradient}, empty when ``material`` is False)."""
-        v = mi.Float(np.asarray(vertices, np.float32).ravel())
-        if geometry:
-            dr.enable_grad(v)
-        self._set_vertices(v)
+        with self._part("scene update"):
+            v = mi.Float(np.asarray(vertices, np.float32).ravel())
+            if geometry:
+                dr.enable_grad(v)
+            self._set_vertices(v)
         latents = self.material.parameters()
         trainable = {n: latents[n] for n in self.material.trainable} if material else {}
         for z in trainable.values():
@@ -95,15 +122,22 @@ class Objective:
                 # the last backward pass used up the graph from v to the vertex normals: rebuild
                 # the normals alone (the positions, and so the scene's BVH, are unchanged; a full
                 # update rebuilt the BVH, 0.16 s at 170k faces)
-                self.renderer.object.recompute_vertex_normals()
-            img = self.renderer.render_split(view, seed=step_seed + k, params=params)
-            loss = dr.mean(dr.square(self._tone(img) - self.targets[view]), axis=None).array / len(view_ids)
+                with self._part("scene update"):
+                    self.renderer.object.recompute_vertex_normals()
+            with self._part("forward"):
+                img = self.renderer.render_split(view, seed=step_seed + k, params=params)
+                loss = dr.mean(dr.square(self._tone(img) - self.targets[view]), axis=None).array / len(view_ids)
+                if self.timer is not None:
+                    dr.eval(loss)
             # one backward pass per view: the integrator re-traces the scene when differentiating,
             # so it must happen while this view's lights are still in place
-            dr.backward(loss)
-            total += float(loss[0])
-        grad_v = np.array(dr.grad(v), np.float64).reshape(-1, 3) if geometry else None
-        grads = {n: np.array(dr.grad(z), np.float64) for n, z in trainable.items()}
+            with self._part("backward"):
+                dr.backward(loss)
+            with self._part("read-back"):
+                total += float(loss[0])
+        with self._part("read-back"):
+            grad_v = np.array(dr.grad(v), np.float64).reshape(-1, 3) if geometry else None
+            grads = {n: np.array(dr.grad(z), np.float64) for n, z in trainable.items()}
         for z in trainable.values():
             dr.disable_grad(z)
         return total, grad_v, grads  # the scene keeps v: every call sets its own vertices first

@@ -37,7 +37,7 @@ LAST_STAGE_COST = 1.5
 
 def reconstruct(capture: Capture, out: RunFolder, config: ReconstructConfig, events, *, resume: bool = False,
                 material=None, objective_factory=Objective, planner=None, tracking=None,
-                remaining=None) -> Result:
+                remaining=None, started: float | None = None, level_limit: int | None = None) -> Result:
     """Reconstruct ``capture`` into the run folder ``out`` (docs/protocol.md), emitting
     ``events`` (an Emitter: ``events(name, **fields)``). Args:
         resume: continue from the folder's saved state.
@@ -46,20 +46,24 @@ def reconstruct(capture: Capture, out: RunFolder, config: ReconstructConfig, eve
         objective_factory: builds each level's objective, called as ``Objective`` is (tests
             wrap the real one to record every step).
         planner: called as ``planner(capture, viewset, geometry_settings, material_settings,
-            initial_mesh, held)`` once a new run has decided its effects, before its first
-            step, uncharged. Returns None or (the live estimate of the time left, which the
-            progress events follow: ``observe(event, fields, now)`` and ``seconds(now)`` as
-            planning.remaining.Remaining has, or None; the geometry steps per level, or None).
+            mesh, held)`` once, when a new run's first level and its material cycle have
+            ended (so the first step comes without delay), charged to the budget. Returns
+            None or the live estimate of the time left, which the progress events follow
+            (``observe(event, fields, now)`` and ``seconds(now)``, as
+            planning.remaining.Remaining has).
         tracking: ``tracking(capture, config)`` -> (the capture to fit, its held-out accuracy
             tracker): planning.tracking.start, which ``config.track_accuracy`` needs.
         remaining: a resumed run's live estimate of the time left (planning.remaining.resumed).
+        started: the ``time.perf_counter()`` reading the budget's clock starts from (the
+            command's start; default: now).
+        level_limit: the geometry steps after which a level ends (None: ``level_iterations``).
     Raises InputError on bad input; cancellation returns exit code 130."""
     if tracking is None:
         if config.track_accuracy:
             raise ValueError("config.track_accuracy needs tracking= (backend.planning.tracking.start)")
         tracking = lambda capture, config: (capture, Untracked())  # noqa: E731
     run = Reconstruction(capture, out, config, events, tracking, material=material, resume=resume,
-                         objective_factory=objective_factory)
+                         objective_factory=objective_factory, started=started, level_limit=level_limit)
     return Result(run.run(planner, remaining), out.path)
 
 
@@ -94,7 +98,8 @@ class Reconstruction:
               ("_polish", ("polish",), "polish"))
 
     def __init__(self, capture: Capture, folder: RunFolder, config: ReconstructConfig, emit, tracking,
-                 material=None, resume: bool = False, objective_factory=Objective):
+                 material=None, resume: bool = False, objective_factory=Objective, started: float | None = None,
+                 level_limit: int | None = None):
         capture, self.accuracy = tracking(capture, config)  # --track-accuracy: views held out of every fit
         self.capture, self.folder, self.config = capture, folder, config
         self.state = RunState()
@@ -110,7 +115,9 @@ class Reconstruction:
         self.viewset = ViewSet(capture, config.max_size)
         self.appearance = Appearance(capture, config, emit)
         self.appearance.start_lighting(folder.path, resume)
-        self.budget = self.paced.budget = Budget(config, self.state, staged=self.appearance.staged)
+        self.budget = self.paced.budget = Budget(config, self.state, staged=self.appearance.staged, started=started)
+        self.level_limit = level_limit
+        self.planner = None  # called once after the first level (``reconstruct``)
         self.accuracy.clock = self.budget.elapsed
         self.validation: float | None = None  # the last validation loss a level computed
         self.truth = truth_mesh(capture)
@@ -126,7 +133,8 @@ class Reconstruction:
                 if self.resume:
                     self._load_state(remaining)
                 else:
-                    self._start(planner)
+                    self.planner = planner
+                    self._start()
                 self.track("resume" if self.resume else "start")
                 self._phases()
             except (KeyboardInterrupt, StopRequested):
@@ -139,7 +147,7 @@ class Reconstruction:
         return 0
 
     # -- start -------------------------------------------------------------------------------------
-    def _start(self, planner) -> None:
+    def _start(self) -> None:
         c, s = self.config, self.state
         start = time.perf_counter()
         self.emit("stage", stage="init", level=0, faces=0)
@@ -155,13 +163,8 @@ class Reconstruction:
         self.stiffness = choose_stiffness(self.config, coarse, spatially_varying=self.appearance.staged)
         self.emit("stiffness", **self.stiffness.event())
         s.budget = FaceBudget(s.mesh.n_faces, growth=c.face_growth)
+        s.level_limit = self.level_limit
         s.timed("init", start)
-        if planner is not None:
-            with self.budget.uncharged():
-                planned = planner(self.capture, self.viewset, self.appearance.geometry_settings(RenderSettings.for_geometry(self.config)),
-                                  self.appearance.material_settings(RenderSettings.for_geometry(c)), s.mesh,
-                                  self.accuracy.held)
-            self.budget.remaining, s.level_limit = (None, None) if planned is None else planned
         report = inspect(s.mesh)
         s.init = {"kind": kind, "faces": s.mesh.n_faces, "genus": report.genus,
                   "seconds": round(time.perf_counter() - start, 3)}
@@ -209,12 +212,25 @@ class Reconstruction:
                     record.add_cycle(cycle)
                     self.track("material")
                 self.snapshot(loss=record.loss)
+                self._plan()
                 s.levels_ended = levels_end(self.config, s, self.budget, record)
                 if s.levels_ended:
                     return
             transition(self._fit(), self.appearance)
             s.level += 1
             s.phase = "level"
+
+    def _plan(self) -> None:
+        """The planner's estimate of the time left, once, after the first level: measuring this
+        capture's step costs before the first step would delay it (``reconstruct``)."""
+        planner, self.planner = self.planner, None
+        if planner is None:
+            return
+        start, c = time.perf_counter(), self.config
+        self.budget.remaining = planner(
+            self.capture, self.viewset, self.appearance.geometry_settings(RenderSettings.for_geometry(c)),
+            self.appearance.material_settings(RenderSettings.for_geometry(c)), self.state.mesh, self.accuracy.held)
+        self.state.timed("plan", start)
 
     def _level(self, kind: type[LevelRun]) -> LevelRecord:
         """One level or polish round (``kind``) on the current state; its record."""
@@ -286,15 +302,14 @@ class Reconstruction:
     def track(self, why: str, mesh: Mesh | None = None) -> None:
         """Score the held-out views (--track-accuracy; planning/tracking.py) with ``mesh`` (default
         the state's) and the current material: ``why`` "every" only when the interval has passed,
-        else at a boundary (start, level, material, polish, end). Not charged to the budget."""
+        else at a boundary (start, level, material, polish, end). Charged to the budget."""
         if not self.accuracy.enabled or (why == "every" and not self.accuracy.due()):
             return
         s = self.state
         start = time.perf_counter()
-        with self.budget.uncharged():
-            point = self.accuracy.score(s.mesh if mesh is None else mesh, self.material, self.appearance.lighting,
-                                        level=s.level, phase=s.phase, why=why, validation_loss=self.validation,
-                                        folder=self.folder.path)
+        point = self.accuracy.score(s.mesh if mesh is None else mesh, self.material, self.appearance.lighting,
+                                    level=s.level, phase=s.phase, why=why, validation_loss=self.validation,
+                                    folder=self.folder.path)
         s.timed("accuracy", start)
         self.emit("accuracy", **point)
 
@@ -316,7 +331,7 @@ class Reconstruction:
         rel = self.folder.snapshot(self.material.display(s.mesh), info, state, self.material)
         self.emit("snapshot", path=rel, iteration=s.iteration, faces=s.mesh.n_faces, loss=loss)
         self.last_snapshot = time.perf_counter()
-        self.snapshot_seconds = self.last_snapshot - start
+        self.snapshot_seconds = self.budget.snapshot_s = self.last_snapshot - start
         s.timed("snapshots", start)
         return rel
 

@@ -8,6 +8,7 @@ import dataclasses
 import json
 import math
 import os
+import time
 from contextlib import contextmanager
 from pathlib import Path
 from types import SimpleNamespace
@@ -27,7 +28,7 @@ from . import tracking
 from .accuracy_forecast import probe
 from .presets import DEFAULT, PRESETS, calibrated, calibration_scene, lighting_kind, preset_for_budget
 from .remaining import Remaining, resumed
-from .time_plan import capture_plan, make_plan
+from .time_plan import capture_plan, level_limit, make_plan
 
 OVERRIDES = ("init", "material", "effects", "initial_faces", "iterations", "seed", "max_size", "coarse_size", "views_per_step",
              "integrator", "max_depth", "spp", "remesh", "max_levels", "level_iterations", "step", "lambda_",
@@ -37,6 +38,10 @@ DEFAULT_MATERIAL = "staged"
 MATERIAL_ALIASES = {"constant": "auto", "full": "staged"}
 SETTINGS_VARIABLE = "SFT_RECONSTRUCT_SETTINGS"
 PATH_OPTIONS = ("--out", "--masks", "--env", "--init")
+# a run with a shorter time budget measures no step costs (a capture's earlier runs may have
+# cached them): the measurement would take a tenth of a two-minute budget for an estimate of
+# the time left that the budget bounds anyway
+MEASURE_MIN_BUDGET_S = 600.0
 
 
 def choose_preset(args) -> str:
@@ -152,6 +157,7 @@ def run(args) -> int:
     """
     from ..material.constant import parse_spec  # loads Mitsuba: only once a run starts, not on import
 
+    started = getattr(args, "started", None) or time.perf_counter()  # the budget's clock: the command's start
     if args.resume and args.material is None:
         args.material = resumed_material(args.out)
     config = config_from_args(args)
@@ -174,17 +180,19 @@ def run(args) -> int:
     if not args.resume and getattr(args, "argv", None):
         folder.record_command(absolute_paths(args.argv, args))
     emit = Emitter(log_path=folder.events)
+    emit.start = started  # event times, like the budget, count from the command's start
     try:
         with reported(emit):
             emit("start", run=str(folder.path), capture=str(args.capture), settings=dataclasses.asdict(config))
             emit("variant", variant=chosen, llvm=os.environ.get("DRJIT_LIBLLVM_PATH"))
-            planner = _preset_event(args, emit, config, capture)
             if video is not None:
                 capture = video_capture(video, folder, args.resume, emit)
                 Appearance.check(capture, config)
+            planner, limit = _preset_event(args, emit, config, capture, folder)
             remaining = resumed(folder.events, config.time_budget_s) if args.resume else None  # its plan, phases done
             return reconstruct(capture, folder, config, emit, resume=args.resume, planner=planner,
-                               tracking=tracking.start, remaining=remaining).exit_code
+                               tracking=tracking.start, remaining=remaining, started=started,
+                               level_limit=limit).exit_code
     finally:
         emit.close()
 
@@ -255,46 +263,58 @@ def _preset_note(preset: str, expected: dict, kind: str) -> str | None:
     return None
 
 
-def _preset_event(args, emit, config, capture):
-    """The ``preset`` event: the preset chosen, its calibrated figures and this capture's
-    predicted time. A new run announces it once its effects are decided (the planner it
-    returns, which ``reconstruct`` calls), so that the plan times the steps with the effects
-    the run will use; a resumed run announces it at once, without a plan."""
+def _preset_event(args, emit, config, capture, folder):
+    """The ``preset`` event, at once: the preset chosen and its calibrated figures; and
+    (planner, level limit) for ``reconstruct``. The level limit comes from the calibration
+    alone. A new run's planner, which ``reconstruct`` calls once its first level has ended
+    (so that the first step comes without delay, with the effects the run decided),
+    predicts this capture's time from its step costs (cached beside the capture by
+    ``step_costs.cached``; measured only without a time budget or with one of at least
+    ``MEASURE_MIN_BUDGET_S``), announces it in a second ``preset`` event and returns the
+    live estimate of the time left, caught up with the events so far. The held-out PSNR is
+    predicted only with ``--track-accuracy`` (the probe decides nothing in the run: the Plan
+    button and ``--plan`` probe)."""
     preset = choose_preset(args)
+    kind = lighting_kind(capture, config.lighting)
+    entries = calibrated(kind=kind)
+    expected = entries.get(preset, {})
 
-    def announce(capture, viewset=None, settings=None, material_settings=None, initial=None, held=None):
+    def event(plan=None):
         # expected_*: the figures of the calibration scene lit as this capture is (point lights or
-        # an environment map; null where that kind is not calibrated); predicted_minutes: this
-        # capture's own, from its measured step costs (planning/time_plan.py)
-        kind = lighting_kind(capture, config.lighting)
-        entries = calibrated(kind=kind)
-        expected = entries.get(preset, {})
-        plan = None
-        if settings is not None:
-            probing = probe_config(args, config.lighting)
-            same = (probing.init, probing.initial_faces) == (config.init, config.initial_faces)
-            probed = safe_probe(probe, capture, probing, held, warn=lambda m: emit("warning", message=m),
-                                mesh=initial if same else None)  # the run's carve, when it is the probe's
-            plan = make_plan(capture, {preset: config}, settings, staged=config.material == "staged",
-                             calibration=entries, viewset=viewset, material_settings=material_settings,
-                             initial=initial, probe=probed)
+        # an environment map; null where that kind is not calibrated); predicted_*: this capture's
+        # own, from its step costs (planning/time_plan.py) and its accuracy probe
+        chosen = None if plan is None else plan.presets[preset]
         emit("preset", preset=preset, chosen_for_budget=args.preset is None and args.time_budget is not None,
              expected_minutes=expected.get("expected_minutes"), expected_f1=expected.get("expected_f1"),
              calibrated_on=calibration_scene(kind), lighting_kind=kind,
-             predicted_minutes=None if plan is None else round(plan.presets[preset].minutes, 2),
-             predicted_psnr=None if plan is None else plan.presets[preset].predicted_psnr,
-             psnr_spread=None if plan is None else plan.presets[preset].psnr_spread,
-             psnr_extrapolated=None if plan is None else plan.presets[preset].psnr_extrapolated,
+             predicted_minutes=None if chosen is None else round(chosen.minutes, 2),
+             predicted_psnr=None if chosen is None else chosen.predicted_psnr,
+             psnr_spread=None if chosen is None else chosen.psnr_spread,
+             psnr_extrapolated=None if chosen is None else chosen.psnr_extrapolated,
              probe=None if plan is None else plan.probe,
-             plan=None if plan is None else {**plan.presets[preset].to_json(), "costs": plan.costs.to_json(),
+             plan=None if plan is None else {**chosen.to_json(), "costs": plan.costs.to_json(),
                                              "render_settings": plan.settings},
              dominated_by=expected.get("dominated_by"), note=_preset_note(preset, expected, kind))
+
+    event()
+    if args.resume:
+        return None, None
+
+    def planner(capture, viewset, settings, material_settings, mesh, held):
+        probed = None
+        if config.track_accuracy:
+            probing = probe_config(args, config.lighting)
+            probed = safe_probe(probe, capture, probing, held, warn=lambda m: emit("warning", message=m), mesh=mesh)
+        budget = config.time_budget_s
+        plan = make_plan(capture, {preset: config}, settings, staged=config.material == "staged",
+                         calibration=entries, viewset=viewset, material_settings=material_settings,
+                         initial=mesh, probe=probed, measure=budget is None or budget >= MEASURE_MIN_BUDGET_S)
         if plan is None:
             return None
-        chosen = plan.presets[preset]  # the run's time left follows it
-        return Remaining.from_plan(chosen, config.time_budget_s), chosen.level_limit
+        event(plan)
+        remaining = Remaining.from_plan(plan.presets[preset], budget)  # the time left follows it
+        for e in read_log(folder.events):
+            remaining.observe(str(e.get("event")), e, float(e.get("time") or 0.0))
+        return remaining
 
-    if args.resume:
-        announce(capture)
-        return None
-    return announce
+    return planner, level_limit(config, expected)

@@ -1,16 +1,23 @@
 """A capture's step costs, measured: seconds per view of a geometry step, a validation render
 and a material step at a few image sizes and face counts, fitted as a + b * pixels + c * faces
-(``StepCosts``); planning/time_plan.py's ``predict`` multiplies them by a preset's steps."""
+(``StepCosts``); planning/time_plan.py's ``predict`` multiplies them by a preset's steps.
+``cached`` keeps a measurement beside the capture for its later runs."""
 
 from __future__ import annotations
 
 import dataclasses
+import hashlib
+import json
+import os
+import platform
 import time
 from dataclasses import dataclass, field
 
 import drjit as dr
+import mitsuba as mi
 import numpy as np
 
+from .. import fsio
 from ..geometry.init.sphere import sphere_mesh
 from ..geometry.subdivide import midpoint
 from ..material import factory
@@ -57,6 +64,11 @@ class StepCosts:
     def to_json(self) -> dict:
         return {"points": [p.to_json() for p in self.points], "seconds": round(self.seconds, 2),
                 "model": {k: [float(f"{x:.4g}") for x in v] for k, v in self.coefficients.items()}}
+
+    @classmethod
+    def from_json(cls, doc: dict, seconds: float = 0.0) -> "StepCosts":
+        """The costs ``to_json`` wrote (refitted from its points); ``seconds``: what getting them took."""
+        return cls([Point(**p) for p in doc["points"]], seconds=seconds)
 
 
 def fit(samples: list[tuple[float, float, float]]) -> tuple[float, float, float]:
@@ -131,6 +143,61 @@ def measure(capture, viewset, settings, sizes: list[int], faces: list[int], tone
             del objective
             dr.flush_malloc_cache()
     return StepCosts(points, seconds=time.perf_counter() - start)
+
+
+CACHE = ".sft-cache/step_costs.json"  # beside the capture: {key: StepCosts.to_json()}
+CACHE_VERSION = 1  # bump when what ``measure`` times changes
+
+
+def _cpu() -> str:
+    try:
+        with open("/proc/cpuinfo", encoding="utf-8") as f:
+            return next((line.split(":", 1)[1].strip() for line in f if line.startswith("model name")),
+                        platform.processor())
+    except OSError:
+        return platform.processor() or platform.machine()
+
+
+def cache_key(capture, settings, sizes, faces, tone, validation_spp, material_settings, initial) -> str:
+    """What a measurement depends on: the capture's file, the render settings, the points
+    timed, the initial mesh's size, the Mitsuba variant and the machine."""
+    doc = capture.root / "capture.json"
+    parts = {"capture": hashlib.sha256(doc.read_bytes()).hexdigest() if doc.is_file() else str(capture.root),
+             "settings": dataclasses.asdict(settings),
+             "material": None if material_settings is None else dataclasses.asdict(material_settings),
+             "sizes": list(sizes), "faces": list(faces), "tone": tone, "spp": validation_spp,
+             "initial": None if initial is None else int(initial.n_faces), "variant": mi.variant(),
+             "cpu": _cpu(), "cores": os.cpu_count(), "version": CACHE_VERSION}
+    return hashlib.sha256(json.dumps(parts, sort_keys=True, default=str).encode()).hexdigest()[:20]
+
+
+def cached(capture, viewset, settings, sizes: list[int], faces: list[int], tone: str = "log",
+           validation_spp: int = 16, material_settings=None, initial=None, measure_now: bool = True):
+    """``measure``'s StepCosts, taken from ``CAPTURE/.sft-cache/step_costs.json`` when an
+    earlier run on this capture measured them with the same inputs (``cache_key``), else
+    measured and kept there (a capture folder that cannot be written keeps nothing); None
+    when there is no cached measurement and ``measure_now`` is False."""
+    start = time.perf_counter()
+    path = capture.root / CACHE
+    key = cache_key(capture, settings, sizes, faces, tone, validation_spp, material_settings, initial)
+    try:
+        entries = json.loads(path.read_text()) if path.is_file() else {}
+    except (OSError, ValueError):
+        entries = {}
+    if isinstance(entries.get(key), dict):
+        try:
+            return StepCosts.from_json(entries[key], seconds=time.perf_counter() - start)
+        except (KeyError, TypeError, ValueError):
+            pass
+    if not measure_now:
+        return None
+    costs = measure(capture, viewset, settings, sizes, faces, tone, validation_spp,
+                    material_settings=material_settings, initial=initial)
+    try:
+        fsio.write_json(path, {**{k: v for k, v in entries.items() if k != key}, key: costs.to_json()})
+    except OSError:
+        pass
+    return costs
 
 
 def pixels_for(viewset):

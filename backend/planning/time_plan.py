@@ -17,7 +17,7 @@ from ..render import effects
 from ..render.scene import RenderSettings
 from .accuracy_forecast import extrapolated, gain, load_gains, predicted_psnr
 from .remaining import Phase
-from .step_costs import MAX_PROBE_FACES, Point, StepCosts, fit, measure, pixels_for, probe_mesh  # noqa: F401 (the plan's API)
+from .step_costs import MAX_PROBE_FACES, Point, StepCosts, cached, fit, measure, pixels_for, probe_mesh  # noqa: F401 (the plan's API)
 
 FIXED_SECONDS = 15.0  # process start, loading, initial mesh, effects decision, snapshots, outputs
 # means over staged Draft runs (docs/results.md): these end on their own
@@ -283,18 +283,22 @@ def minutes_text(minutes: float) -> str:
 
 
 def make_plan(capture, configs: dict, settings, staged: bool, calibration: dict | None = None,
-              viewset=None, material_settings=None, initial=None, probe: dict | None = None) -> Plan:
-    """Measure this capture's step costs and predict every preset of ``configs`` ({name:
-    ReconstructConfig}); ``settings``: the geometry steps' RenderSettings; ``calibration``:
-    {preset: calibration entry}; ``initial``: the run's initial mesh (None: icospheres);
-    ``probe``: accuracy_forecast.probe's measurement, for each preset's predicted held-out PSNR."""
+              viewset=None, material_settings=None, initial=None, probe: dict | None = None,
+              measure: bool = True) -> Plan | None:
+    """This capture's step costs (``step_costs.cached``) and every preset of ``configs`` ({name:
+    ReconstructConfig}) predicted from them; ``settings``: the geometry steps' RenderSettings;
+    ``calibration``: {preset: calibration entry}; ``initial``: the run's mesh (None:
+    icospheres); ``probe``: accuracy_forecast.probe's measurement, for each preset's predicted
+    held-out PSNR; ``measure``: False takes only cached costs (None without them)."""
     largest = max(c.max_size for c in configs.values())
     viewset = viewset or ViewSet(capture, largest)
     pixels_at = pixels_for(viewset)
     sizes, faces = probe_points(configs.values(), pixels_at)
     first = next(iter(configs.values()))
-    costs = measure(capture, viewset, settings, sizes, faces, first.tone, first.validation_spp,
-                    material_settings=material_settings if staged else None, initial=initial)
+    costs = cached(capture, viewset, settings, sizes, faces, first.tone, first.validation_spp,
+                   material_settings=material_settings if staged else None, initial=initial, measure_now=measure)
+    if costs is None:
+        return None
     presets = {name: predict(name, c, costs, pixels_at, len(viewset), staged, (calibration or {}).get(name))
                for name, c in configs.items()}
     gains = load_gains()
@@ -302,7 +306,7 @@ def make_plan(capture, configs: dict, settings, staged: bool, calibration: dict 
         p.predicted_psnr = predicted_psnr(probe, name, gains)
         p.psnr_extrapolated = None if p.predicted_psnr is None else extrapolated(probe, gains)
         p.psnr_spread = None if p.predicted_psnr is None or p.psnr_extrapolated else gain(gains, name)[1]
-        p.fixed_s += (probe or {}).get("seconds", 0.0)  # a run probes again before its first step
+        p.fixed_s += (probe or {}).get("seconds", 0.0)  # a run that predicts its accuracy probes too
     return Plan(costs, presets, dataclasses.asdict(settings), probe)
 
 

@@ -158,7 +158,7 @@ class AccuracyTracker:
         """Render and score the views now; the point (the ``accuracy`` event's fields).
         ``lighting``: the run's fitted lighting (``Appearance.lighting``: an estimated map, a
         flash, or None for the captured lights), which lights the views (backend.lighting.fitted)."""
-        start, now = time.perf_counter(), self.now()  # the time the model had: scoring is not charged
+        start, now = time.perf_counter(), self.now()  # the run time at which the model is scored
         c, views = self.config, self.views()
         lit = fitted.light_views(self.held.capture, fitted.from_live(lighting, material))
         lights = {f.name: f.lights for f in lit.frames}

@@ -81,15 +81,16 @@ def test_the_preset_event_carries_the_captures_prediction(capture, tmp_path):
                    "--material", "known:0.6,0.6,0.6:0.25:0.35", "--effects", "specular", timeout=300)
     assert proc.returncode == 0, proc.stderr[-2000:]
     events = [json.loads(line) for line in (run / "events.jsonl").read_text().splitlines()]
-    preset = next(e for e in events if e["event"] == "preset")
+    preset = next(e for e in events if e["event"] == "preset" and e.get("plan"))
     assert preset["preset"] == "draft" and preset["predicted_minutes"] > 0
     assert preset["expected_minutes"] is not None  # the calibration's figure stays (point-lit capture)
     assert sum(lv["steps"] for lv in preset["plan"]["levels"]) == 6  # the iteration cap
     assert preset["plan"]["costs"]["seconds"] < 30 and preset["plan"]["costs"]["points"]
-    # planned with the effects the run decided: after the decision, before the first step
+    # the preset is announced before the first step; the plan, with the effects the run decided,
+    # once the first level has ended, so that measuring the steps does not delay the first one
     order = [e["event"] for e in events]
-    assert order.index("effects") < order.index("preset") < next(
-        i for i, e in enumerate(events) if e["event"] == "progress" and e.get("stage") == "geometry")
+    first_step = next(i for i, e in enumerate(events) if e["event"] == "progress" and e.get("stage") == "geometry")
+    assert order.index("effects") < order.index("preset") < first_step < events.index(preset)
     decided = next(e for e in events if e["event"] == "effects")["enabled"]
     timed = preset["plan"]["render_settings"]
     assert timed["max_depth"] == decided["max_depth"] and (timed["sppi"] > 0) == decided["shadows"]
@@ -168,7 +169,7 @@ def test_a_run_ends_each_level_at_its_plans_limit(capture, tmp_path):
                    timeout=600)
     assert proc.returncode == 0, proc.stderr[-2000:]
     events = [json.loads(line) for line in (run / "events.jsonl").read_text().splitlines()]
-    preset = next(e for e in events if e["event"] == "preset")
+    preset = next(e for e in events if e["event"] == "preset" and e.get("plan"))
     limit = preset["plan"]["level_limit"]
     entry = calibrated(kind=preset["lighting_kind"])["draft"]
     assert limit == plan.level_limit(ReconstructConfig(**{**PRESETS["draft"], "level_iterations": 1000}), entry)

@@ -126,7 +126,7 @@ def test_a_staged_runs_progress_counts_down_through_the_material_stages(tmp_path
                    "--material", "staged", timeout=900)
     assert proc.returncode == 0, proc.stderr[-2000:]
     events = [json.loads(line) for line in (run / "events.jsonl").read_text().splitlines()]
-    preset = next(e for e in events if e["event"] == "preset")
+    preset = next(e for e in events if e["event"] == "preset" and e.get("plan"))
     assert [p["kind"] for p in preset["plan"]["phases"]][-2:] == ["final", "polish"]
     start = events.index(preset)
     last_level = max(i for i, e in enumerate(events) if e["event"] == "stage" and e["stage"] == "geometry")
