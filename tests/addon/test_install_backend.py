@@ -96,6 +96,7 @@ def test_install_backend_says_how_to_allow_online_access(context, extension):
     venv = import_module(f"{extension.__name__}.addon.preferences").installed_venv()
     system = context.preferences.system
     allowed = system.use_online_access
+    before = (venv / "INSTALLED").exists()  # an earlier test may have installed one
     system.use_online_access = False
     try:
         assert not bpy.app.online_access
@@ -109,7 +110,8 @@ def test_install_backend_says_how_to_allow_online_access(context, extension):
     assert "does not allow online access" in message and "Fix:" in message
     assert "Preferences > System > Network > Allow Online Access" in message
     assert prefs.check_result.endswith("then press Install Backend again") and "\n" not in prefs.check_result
-    assert not (venv / "INSTALLED").exists() and not venv.with_name(f".{venv.name}.installing").exists()
+    # nothing was tried: the environment (or its absence) is as it was, and nothing was staged
+    assert (venv / "INSTALLED").exists() == before and not venv.with_name(f".{venv.name}.installing").exists()
 
 
 def test_offline_install_fails_with_one_line_and_leaves_nothing(tmp_path):
