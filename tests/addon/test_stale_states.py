@@ -51,7 +51,7 @@ def test_importing_cameras_clears_the_plan_line(context, tmp_path):
 
 def test_a_plan_of_other_settings_is_not_shown(context, addon, tmp_path):
     """What Plan measured is compared with the scene's settings when it ends."""
-    plan = __import__(f"{addon.__name__}.operators.plan", fromlist=["plan"])
+    plan = __import__(f"{addon.__name__}.operators.preset_plan", fromlist=["preset_plan"])
     capture = _capture(tmp_path / "capture", lights=False)
     sft = context.scene.sft
     sft.capture_dir, sft.extra_args = str(capture), "--mode bad-input"  # the scripted backend ends at once
