@@ -87,7 +87,7 @@ def add_arguments(parser):
     parser.add_argument("--remesh", choices=["auto", "always", "never"],
                         help="re-mesh between levels: when inconsistent (auto, the default), always or never")
     parser.add_argument("--track-metrics", action="store_true",
-                        help="with ground truth: metrics after every level (time not charged to the budget)")
+                        help="with ground truth: metrics after every level (charged to the budget)")
     parser.add_argument("--track-accuracy", action="store_true",
                         help="score held-out views every 30 s of run time and at every level's and stage's end "
                              "(charged to the budget): accuracy events, report.json accuracy_time and "

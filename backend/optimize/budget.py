@@ -5,13 +5,11 @@ results.
 
 The budget is the wall clock of the whole command: the clock starts when the command starts
 (``started``), so loading, the capture written from a video, initialisation, the plan, the
-held-out scoring, re-meshes and the results all count. Only metrics against a ground-truth
-mesh (``--track-metrics``, a benchmark's instrument) are left out (``uncharged``)."""
+held-out scoring, metrics against a ground-truth mesh, re-meshes and the results all count."""
 
 from __future__ import annotations
 
 import time
-from contextlib import contextmanager
 
 from .records import RunState
 
@@ -40,32 +38,22 @@ def polish_share(last_cycle_seconds: float | None, budget_s: float | None) -> fl
 
 class Budget:
     """The clock: seconds since ``started`` (a ``time.perf_counter()`` reading: the command's
-    start; default now), plus those of the runs this one resumes, less the time spent on
-    metrics against the ground truth (not charged). ``staged``: whether a material schedule
-    runs (the reserves apply only then)."""
+    start; default now), plus those of the runs this one resumes. ``staged``: whether a
+    material schedule runs (the reserves apply only then)."""
 
     def __init__(self, config, state: RunState, staged: bool, started: float | None = None):
         self.config, self.state, self.staged = config, state, staged
         self.t0 = time.perf_counter() if started is None else started
-        self.excluded = 0.0
         self.remaining = None  # planning.remaining.Remaining, once the run has a plan
         self.snapshot_s = 0.0  # what the last snapshot took to write
+        self.metrics_s = 0.0  # what scoring the mesh against a true one took, when the run does
 
     def finish_s(self) -> float:
         """Seconds held back for writing the results once the last step has run."""
-        return max(FINISH_MIN_S, FINISH_SNAPSHOTS * self.snapshot_s)
+        return max(FINISH_MIN_S, FINISH_SNAPSHOTS * self.snapshot_s) + self.metrics_s
 
     def elapsed(self) -> float:
-        return self.state.seconds_before + time.perf_counter() - self.t0 - self.excluded
-
-    @contextmanager
-    def uncharged(self):
-        """Time spent inside is not charged to the budget (metrics against the ground truth)."""
-        start = time.perf_counter()
-        try:
-            yield
-        finally:
-            self.excluded += time.perf_counter() - start
+        return self.state.seconds_before + time.perf_counter() - self.t0
 
     def fraction(self) -> float:
         """The share of the run done, for the progress events' ETA: elapsed / (elapsed + the time

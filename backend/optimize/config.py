@@ -84,7 +84,7 @@ class ReconstructConfig:
     # output
     snapshot_every_s: float = 1.0  # the add-on streams an update every second...
     snapshot_share: float = 0.05  # ...or less often, so that writing snapshots takes at most this share of the time
-    track_metrics: bool = False  # metrics after every level (time excluded from the budget)
+    track_metrics: bool = False  # metrics after every level (charged to the budget)
     # held-out PSNR against run time (backend.planning.tracking; its time is charged to the budget):
     # the capture's ground-truth held-out views, else every held_out_every-th view, not fitted
     track_accuracy: bool = False

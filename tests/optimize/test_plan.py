@@ -90,7 +90,8 @@ def test_the_preset_event_carries_the_captures_prediction(capture, tmp_path):
     # once the first level has ended, so that measuring the steps does not delay the first one
     order = [e["event"] for e in events]
     first_step = next(i for i, e in enumerate(events) if e["event"] == "progress" and e.get("stage") == "geometry")
-    assert order.index("effects") < order.index("preset") < first_step < events.index(preset)
+    assert order.index("preset") < first_step < events.index(preset)
+    assert order.index("effects") < events.index(preset)
     decided = next(e for e in events if e["event"] == "effects")["enabled"]
     timed = preset["plan"]["render_settings"]
     assert timed["max_depth"] == decided["max_depth"] and (timed["sppi"] > 0) == decided["shadows"]

@@ -49,4 +49,4 @@ def test_step_costs_are_measured_once_per_capture(tiny_capture, tmp_path):
     assert (capture / CACHE).is_file()
     second = planned(tmp_path / "second")
     assert second["plan"]["costs"]["points"] == first["plan"]["costs"]["points"]
-    assert second["plan"]["costs"]["seconds"] < 0.5 < first["plan"]["costs"]["seconds"]
+    assert second["plan"]["costs"]["seconds"] < min(0.1, first["plan"]["costs"]["seconds"] / 3)  # read, not timed
