@@ -37,19 +37,15 @@ ORDER = ("demo", "table1", "material", "geometry", "effects", "hdr", "torus-effe
 INTRO = """\
 # Results
 
-The latest figures of every benchmark, generated from their records in
-[bench/records/](../bench/records/) (each with its command, commit, machine and date) by
-`python -m backend bench results`. The machine is a 2-core x86-64 CPU with no GPU
-(`llvm_ad_rgb`) unless a table says otherwise. Each table ends with the command that
-reproduces it (`python -m backend` left out); `bench sweep --all --out OUT` runs them all.
-The method: [method.md](method.md); experiments: [notes/](notes/).
+The latest figures of every benchmark, generated from [bench/records/](../bench/records/)
+(command, commit, machine, date) by `python -m backend bench results`; a 2-core x86-64 CPU,
+no GPU, unless a table says otherwise. Each table ends with its command (`python -m backend`
+left out). Method: [method.md](method.md); experiments: [notes/](notes/).
 
-- **Chamfer-L1**, **F1@0.01**, **F1@0.005**: the surface against the true mesh, in units of the
-  truth's longest side; F1@0.01 is the percentage of points within 1 % of it, both ways
-  (perfect: Chamfer 0, F1 100).
-- **held-out** / **relit** PSNR (dB; SSIM beside it): the result rendered with its material at
-  views the run never saw, under the run's lighting / under lighting it never saw; sRGB, within
-  the masks. **albedo RMSE**: over the surface. Times: wall clock unless marked CPU.
+- **Chamfer-L1**, **F1@0.01/0.005**: the surface against the true mesh, in units of its
+  longest side (perfect: 0, 100).
+- **held-out** / **relit** PSNR (dB): renders at views never fitted, under the run's / unseen
+  lighting; sRGB, within the masks. Times: wall clock unless marked CPU.
 """
 
 

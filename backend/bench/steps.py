@@ -129,8 +129,8 @@ def run(args) -> int:
                         [spec, m["step"], *(m[p] for p in PARTS)]), flush=True)
     _records.write_record(
         "steps", title="Step cost split",
-        context=(f"one HDR-lit geometry step ({a.mesh}, {bench.truth_faces} faces, {a.resolution} px, "
-                 f"{a.views_per_step} views, max_depth {a.max_depth}) split into its parts, median seconds per step"),
-        rows=rows, command=f"python -m backend bench steps --faces {a.faces} --resolution {a.resolution}",
+        context=(f"an HDR-lit geometry step ({a.mesh}, {bench.truth_faces} faces, {a.resolution} px, "
+                 f"{a.views_per_step} views, one bounce) in parts, median s; host: scene update, read-back, solve, Python"),
+        rows=rows, show=["config", "step s", "forward", "backward", "silhouette", "host share"], command=f"python -m backend bench steps --faces {a.faces} --resolution {a.resolution}",
         variant=chosen)
     return 0
