@@ -174,7 +174,7 @@ def test_diffuse_only_decision_holds_through_the_material_schedule(tmp_path):
 
 
 def test_bench_targets_and_table():
-    """The effects benchmark's verdict (issue #9's targets) and its all-scenes table."""
+    """The effects benchmark's verdict (its targets) and its all-scenes table."""
     from backend.bench import effects as bench
 
     ref = {"seconds": 400.0, "cpu_seconds": 380.0, "f1": 90.0, "albedo_rmse": 0.050, "psnr": 25.0, "steps": 60,

@@ -147,8 +147,8 @@ def test_dino_poses_match_the_calibration(dino_capture):
                                  for Ro, Rt in zip(R_ours, R_theirs)])
     print(f"dino: centre error / ring radius max {centre_error.max():.2%} mean {centre_error.mean():.2%}; "
           f"rotation error max {rotation_error.max():.2f} mean {rotation_error.mean():.2f} deg")
-    # issue #6's goal: < 2 degrees, < 2 % of the ring radius (3.3 % max before the silhouettes'
-    # tangencies joined the adjustment: its weak links sat off)
+    # the goal: < 2 degrees, < 2 % of the ring radius (the silhouettes' tangencies in the
+    # adjustment hold its weak links)
     assert rotation_error.max() < 2.0
     assert centre_error.mean() < 0.01
     assert centre_error.max() < 0.02
