@@ -1,5 +1,6 @@
 """The step-cost split end to end at a tiny size (real shared mesh and HDR map, real renders):
-every part of a real geometry step is timed and the parts add up to the step."""
+every part of a real geometry step is timed and the parts add up to the step (which part
+costs more between configurations is left to real sizes: at 16 px it is noise)."""
 
 from __future__ import annotations
 
@@ -27,4 +28,3 @@ def test_every_part_of_a_step_is_timed():
         assert r["forward"] > 0 and r["backward"] > 0 and r["silhouette"] > 0 and 0 < r["host share"] < 1
         parts = sum(r[p] for p in steps.PARTS)
         assert parts == pytest.approx(r["step s"], rel=0.25)  # medians of parts: close to the median step
-    assert rows["sppi=4,guiding=none"]["backward"] > rows["sppi=0"]["backward"]  # shadow terms cost in backward
