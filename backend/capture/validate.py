@@ -22,18 +22,22 @@ def validate_environment(capture: Capture) -> None:
             "environment map contains NaN or Inf pixels", "re-export the HDR map")
 
 
-SIGNAL = 5e-4  # linear: a frame whose brightest pixel in its mask is below this (about 2/255 in sRGB) is black
+SIGNAL = 1e-6  # linear: a frame whose brightest pixel in its mask is at most this holds no signal (black)
 
 
 def _has_signal(image: np.ndarray, mask: np.ndarray | None) -> bool:
-    """Whether any pixel inside ``mask`` (the whole frame without one) is brighter than ``SIGNAL``;
-    an empty mask has nothing to judge (the every-mask-empty check covers all of them empty)."""
+    """Whether any pixel inside ``mask`` (the whole frame without one) is brighter than ``SIGNAL``.
+    A dim frame has signal (exposure is fitted); an empty mask has nothing to judge (the
+    every-mask-empty check covers all of them empty), and a frame with non-finite pixels is
+    left to the check that names them."""
     brightest = image.max(axis=-1) if image.ndim == 3 else image
     if mask is not None:
         inside = mask > 0.5
         if not inside.any():
             return True
         brightest = brightest[inside]
+    if not np.all(np.isfinite(brightest)):
+        return True
     return bool(brightest.max() > SIGNAL)
 
 

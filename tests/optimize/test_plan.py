@@ -89,7 +89,7 @@ def test_the_preset_event_carries_the_captures_prediction(capture, tmp_path):
     # the preset is announced before the first step; the plan, with the effects the run decided,
     # once the first level has ended, so that measuring the steps does not delay the first one
     order = [e["event"] for e in events]
-    first_step = next(i for i, e in enumerate(events) if e["event"] == "progress" and e.get("stage") == "geometry")
+    first_step = next(i for i, e in enumerate(events) if e["event"] == "stage" and e.get("stage") == "geometry")
     assert order.index("preset") < first_step < events.index(preset)
     assert order.index("effects") < events.index(preset)
     decided = next(e for e in events if e["event"] == "effects")["enabled"]

@@ -71,7 +71,7 @@ def pipeline_cases(quick: bool) -> dict[str, Setup]:
         "grazing_views": Setup("a flat disc seen only 2-6 degrees above its plane", grazing_scene),
         "single_view": Setup("one view", lambda q: lit_blob(q, views=1)),
         "masked_out_views": Setup("two views looking away, one with the object masked out", masked_out_scene),
-        "near_black_frames": Setup("frames at 1e-4 exposure, one black; material estimated", near_black_scene,
+        "near_black_frames": Setup("frames at 1e-4 exposure; material estimated", near_black_scene,
                                    {"material": "auto"}),
         "nonfinite_pixels": Setup("a frame with NaN and Inf pixels", nonfinite_pixel_scene,
                                   expect_error="NaN or Inf"),
