@@ -107,7 +107,8 @@ def build_scene(args):
     return truth, estimate, cams, env, pixels, step, edge
 
 
-def add_arguments(parser) -> None:
+def add_scene_arguments(parser) -> None:
+    """The scene and the optimiser's step: what ``bench hdr`` and ``bench steps`` share."""
     parser.add_argument("--mesh", choices=sorted(MESHES), default="armadillo", help="default: %(default)s")
     parser.add_argument("--envmap", choices=sorted(ENVMAPS), default="sunset", help="default: %(default)s")
     parser.add_argument("--strength", type=float, default=1.0, help="environment strength (default: %(default)s)")
@@ -126,15 +127,19 @@ def add_arguments(parser) -> None:
     parser.add_argument("--step-move", type=float, default=0.1,
                         help="largest vertex move per step, in mean edge lengths (the optimiser's step cap; "
                              "default: %(default)s)")
+    parser.add_argument("--smoothing", type=float, default=2.0,
+                        help="Large Steps lambda of the optimiser's direction (default: %(default)s, the soft system)")
+    parser.add_argument("--clip", type=float, default=95.0,
+                        help="per-vertex gradient cap percentile of the optimiser's direction (default: %(default)s)")
+
+
+def add_arguments(parser) -> None:
+    add_scene_arguments(parser)
     parser.add_argument("--steps", type=int, default=3, help="timed steps per configuration (default: %(default)s)")
     parser.add_argument("--ref-spp", type=int, default=256, help="default: %(default)s")
     parser.add_argument("--ref-sppi", type=int, default=64, help="default: %(default)s")
     parser.add_argument("--ref-rounds", type=int, default=3,
                         help="fresh octree builds averaged for the indirect reference (default: %(default)s)")
-    parser.add_argument("--smoothing", type=float, default=2.0,
-                        help="Large Steps lambda of the optimiser's direction (default: %(default)s, the soft system)")
-    parser.add_argument("--clip", type=float, default=95.0,
-                        help="per-vertex gradient cap percentile of the optimiser's direction (default: %(default)s)")
     parser.add_argument("--configs", default=DEFAULT_CONFIGS, help="';'-separated (default: %(default)s)")
     parser.add_argument("--out", type=Path, help="write the results as JSON here")
 

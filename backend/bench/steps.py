@@ -34,30 +34,17 @@ from .. import variant
 from ..optimize.objective import StepTimer
 from ..optimize.steps import VertexOptimizer, clip_outliers
 from . import _records
-from .hdr import MESHES, ENVMAPS, _Bench, parse_config
+from .hdr import _Bench, add_scene_arguments, parse_config
 
 PARTS = ("forward", "backward", "silhouette", "scene update", "read-back", "solve", "other")
 
 
 def add_arguments(parser) -> None:
-    parser.add_argument("--mesh", choices=sorted(MESHES), default="armadillo", help="default: %(default)s")
-    parser.add_argument("--envmap", choices=sorted(ENVMAPS), default="forest", help="default: %(default)s")
-    parser.add_argument("--strength", type=float, default=1.0)
-    parser.add_argument("--rotation", type=float, default=0.0)
-    parser.add_argument("--faces", type=int, default=10000, help="default: %(default)s")
-    parser.add_argument("--resolution", type=int, default=128, help="default: %(default)s")
-    parser.add_argument("--views", type=int, default=16, help="default: %(default)s")
-    parser.add_argument("--views-per-step", type=int, default=2, help="default: %(default)s")
-    parser.add_argument("--max-depth", type=int, default=3, help="default: %(default)s (one bounce)")
-    parser.add_argument("--spp", type=int, default=16, help="default: %(default)s")
-    parser.add_argument("--sppp", type=int, default=4, help="default: %(default)s")
-    parser.add_argument("--offset", type=float, default=0.02)
-    parser.add_argument("--step-move", type=float, default=0.1)
+    add_scene_arguments(parser)
+    parser.set_defaults(envmap="forest", faces=10000, resolution=128, views=16, max_depth=3)
     parser.add_argument("--ref-spp", type=int, default=64, help="samples of the target renders (default: %(default)s)")
     parser.add_argument("--steps", type=int, default=8, help="timed steps per configuration (default: %(default)s)")
     parser.add_argument("--warmup", type=int, default=2, help="untimed steps first (default: %(default)s)")
-    parser.add_argument("--smoothing", type=float, default=2.0)
-    parser.add_argument("--clip", type=float, default=95.0)
     parser.add_argument("--configs", default="sppi=0;sppi=12,guiding=none", help="default: %(default)s")
 
 
