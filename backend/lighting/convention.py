@@ -30,7 +30,7 @@ def mean_albedo(material) -> float:
     material constant) and the three channels."""
     values = material.values("albedo")
     if material.channels["albedo"].kind == "colors":
-        return float(values[material.layout.table].mean())
+        return float(values[material.layout.entries].mean())
     return float(values[material.labels].mean())
 
 

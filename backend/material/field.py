@@ -52,6 +52,29 @@ def corners(table: mi.UInt32, r: int, prim, uv, active):
     return [(dr.gather(mi.UInt32, table, base + kk, active), w) for kk, w in zip(local, weights)]
 
 
+def corners_mixed(entries: mi.UInt32, offsets: mi.UInt32, resolutions: mi.Int32, prim, uv, active):
+    """``corners`` with a per-face resolution (MeshColorLayout with an (F,) ``resolution``):
+    r_f and the face's first entry are gathered per hit and the arithmetic is the same, so one
+    kernel serves every resolution (every r_f >= 1)."""
+    r = dr.gather(mi.Int32, resolutions, prim, active)
+    base = dr.gather(mi.UInt32, offsets, prim, active)
+    rf = mi.Float(r)
+    x = dr.clip(uv.x, 0.0, 1.0) * rf
+    y = dr.clip(uv.y, 0.0, 1.0) * rf
+    i = dr.clip(mi.Int32(dr.floor(x)), 0, r - 1)
+    j = dr.clip(mi.Int32(dr.floor(y)), 0, r - 1 - i)
+    fx, fy = x - mi.Float(i), y - mi.Float(j)
+    upper = (fx + fy > 1.0) & (i + j < r - 1)
+
+    def k(a, b):
+        return mi.UInt32((a * (2 * r + 3 - a)) >> 1) + mi.UInt32(b)
+
+    local = [dr.select(upper, k(i + 1, j + 1), k(i, j)), k(i, j + 1), k(i + 1, j)]
+    weights = [dr.select(upper, fx + fy - 1.0, 1.0 - fx - fy), dr.select(upper, 1.0 - fx, fy),
+               dr.select(upper, 1.0 - fy, fx)]
+    return [(dr.gather(mi.UInt32, entries, base + kk, active), w) for kk, w in zip(local, weights)]
+
+
 class MeshColorsField:
     """Material field for SurfaceBSDF: reads the owning material's current Dr.Jit arrays."""
 
@@ -74,8 +97,10 @@ class MeshColorsField:
                 label = dr.gather(mi.UInt32, m.dr_labels, prim, active)
                 out.append(squash(dr.gather(kind, ch.latent, label, active), lo, hi))
             else:
-                if interp is None:
+                if interp is None and m.layout.uniform:
                     interp = corners(m.dr_table, m.layout.resolution, prim, si.uv, active)
+                elif interp is None:
+                    interp = corners_mixed(m.dr_table, m.dr_offsets, m.dr_resolutions, prim, si.uv, active)
                 out.append(sum(w * squash(dr.gather(kind, ch.latent, idx, active), lo, hi)
                                for idx, w in interp))
         return tuple(out)

@@ -26,7 +26,7 @@ from .. import fsio
 from ..geometry.mesh import NORMAL_ATTRIBUTES, Mesh
 from .base import NEUTRAL, Material
 from .field import MeshColorsField, squash_np, unsquash_np
-from .meshcolors import MeshColorLayout, local_sub_triangles
+from .meshcolors import MeshColorLayout
 from .transfer import locate, project_onto_faces
 
 @dataclass
@@ -43,7 +43,7 @@ class MeshColorMaterial(Material):
 
     KIND = "meshcolors"
 
-    def __init__(self, mesh: Mesh, resolution: int = 4, labels: np.ndarray | None = None,
+    def __init__(self, mesh: Mesh, resolution: int | np.ndarray = 4, labels: np.ndarray | None = None,
                  n_materials: int | None = None, halve_resolution_on_subdivide: bool = True):
         self.vertices = mesh.vertices.copy()
         self.layout = MeshColorLayout(mesh.faces, mesh.n_vertices, resolution)
@@ -61,14 +61,23 @@ class MeshColorMaterial(Material):
     # -- state ---------------------------------------------------------------------------
     @property
     def resolution(self) -> int:
+        """The mesh colors' resolution r (the largest r_f when faces have their own)."""
         return self.layout.resolution
+
+    @property
+    def resolutions(self) -> np.ndarray:
+        """(F,) each face's mesh-color resolution r_f."""
+        return self.layout.resolutions
 
     @property
     def n_faces(self) -> int:
         return self.layout.n_faces
 
     def _push_topology(self) -> None:
-        self.dr_table = mi.UInt32(self.layout.table.astype(np.uint32).ravel())
+        self.dr_table = mi.UInt32(self.layout.entries.astype(np.uint32))
+        if not self.layout.uniform:  # the per-face lookup's offsets and resolutions (field.corners_mixed)
+            self.dr_offsets = mi.UInt32(self.layout.offsets[:-1].astype(np.uint32))
+            self.dr_resolutions = mi.Int32(self.layout.resolutions.astype(np.int32))
 
     def set_labels(self, labels: np.ndarray, n_materials: int | None = None) -> None:
         """Per-face material labels 0 .. n-1. Constant channels keep the values of labels that
@@ -129,15 +138,16 @@ class MeshColorMaterial(Material):
         """Turn mesh colors into per-material constants (area-free mean over each material's faces)."""
         if self.channels[name].kind == "constant":
             return
-        per_face = self.values(name)[self.layout.table].mean(1)
+        per_face = self.layout.face_means(self.values(name))
         const = np.tile(self._neutral(name), (self.n_materials, 1))
         for m in range(self.n_materials):
             if np.any(self.labels == m):
                 const[m] = per_face[self.labels == m].mean(0)
         self.set_values(name, const, "constant")
 
-    def set_resolution(self, resolution: int) -> None:
-        """Change r, resampling mesh-color channels (exact when the new grid refines the old)."""
+    def set_resolution(self, resolution: int | np.ndarray) -> None:
+        """Change r (one for every face, or an (F,) array of per-face r_f), resampling mesh-color
+        channels (exact where a face's new grid refines its old one)."""
         old_layout, old_values = self.layout, self._colors()
         self.layout = MeshColorLayout(old_layout.faces, old_layout.n_vertices, resolution)
         self._push_topology()
@@ -195,11 +205,11 @@ class MeshColorMaterial(Material):
         """Carry labels and values onto a subdivision of the old mesh (new faces lie inside old
         ones). Exact for midpoint subdivision: r is kept, or halved when even (the child grid
         then coincides with the parent grid), so the interpolated function is unchanged."""
-        r = self.resolution
-        if self.halve_resolution_on_subdivide and r >= 2 and r % 2 == 0:
-            r //= 2
         parent = self._parents(old_mesh, new_mesh)
-        layout = MeshColorLayout(new_mesh.faces, new_mesh.n_vertices, r)
+        r = self.resolutions
+        if self.halve_resolution_on_subdivide:
+            r = np.where((r >= 2) & (r % 2 == 0), r // 2, r)
+        layout = MeshColorLayout(new_mesh.faces, new_mesh.n_vertices, self._child_resolutions(r, parent))
         face, bary = layout.sample_sites()
         face = np.maximum(face, 0)
         tri = new_mesh.vertices[new_mesh.faces[face]]
@@ -223,7 +233,8 @@ class MeshColorMaterial(Material):
         old_faces = self.layout.faces
         centroids = new_mesh.vertices[new_mesh.faces].mean(1)
         parent, _, _ = locate(centroids, old_vertices, old_faces, exhaustive=False)
-        layout = MeshColorLayout(new_mesh.faces, new_mesh.n_vertices, self.resolution)
+        layout = MeshColorLayout(new_mesh.faces, new_mesh.n_vertices,
+                                 self._child_resolutions(self.resolutions, parent))
         colors = {}
         if not reset:
             points = layout.sample_positions(new_mesh.vertices)
@@ -234,6 +245,10 @@ class MeshColorMaterial(Material):
             self.reset()
         for name, vals in colors.items():
             self.set_values(name, vals, "colors")
+
+    def _child_resolutions(self, resolutions: np.ndarray, parent: np.ndarray):
+        """A new mesh's resolution: one r when every face had it, else each face its parent's."""
+        return int(resolutions[0]) if self.layout.uniform and len(resolutions) else resolutions[parent]
 
     def _parents(self, old_mesh: Mesh, new_mesh: Mesh) -> np.ndarray:
         if old_mesh.n_faces != self.n_faces:
@@ -254,7 +269,7 @@ class MeshColorMaterial(Material):
 
     # -- display ------------------------------------------------------------------------------
     def display(self, mesh: Mesh) -> Mesh:
-        """The snapshot mesh: each face split r x r so vertices sit on the mesh-color samples,
+        """The snapshot mesh: each face split r_f x r_f so vertices sit on the mesh-color samples,
         with vertex_colors = albedo and attributes specular, roughness and nx, ny, nz: the
         base mesh's vertex normals interpolated (Phong), so the flat split faces shade as the
         smooth surface that was fitted (docs/protocol.md).
@@ -265,20 +280,19 @@ class MeshColorMaterial(Material):
             raise ValueError(f"the material has {self.n_faces} faces, the mesh {mesh.n_faces}")
         spatial = any(ch.kind == "colors" for ch in self.channels.values())
         split = self.n_materials > 1 and any(ch.kind == "constant" for ch in self.channels.values())
-        r = self.resolution if spatial else 1
-        layout = self.layout if r == self.resolution else MeshColorLayout(self.layout.faces, self.layout.n_vertices, r)
+        layout = self.layout if spatial else MeshColorLayout(self.layout.faces, self.layout.n_vertices, 1)
         F = self.n_faces
-        if r == 0:  # every face gets its own three vertices carrying the face's value
+        if layout.uniform and layout.resolution == 0:  # every face: its own three vertices, the face's value
             faces = np.arange(3 * F).reshape(F, 3)
             site_face = np.repeat(np.arange(F), 3)
             site = np.tile([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]], (F, 1))
             value_site = np.full_like(site, 1.0 / 3.0)
         else:
-            key = layout.table * self.n_materials + self.labels[:, None] if split else layout.table
-            _, first, inverse = np.unique(key.ravel(), return_index=True, return_inverse=True)
-            faces = inverse.reshape(key.shape)[:, local_sub_triangles(r)].reshape(-1, 3)
-            site_face = np.repeat(np.arange(F), key.shape[1])[first]
-            site = value_site = np.tile(layout.local_barycentrics(), (F, 1))[first]
+            key = layout.entries * self.n_materials + self.labels[layout.entry_face] if split else layout.entries
+            _, first, inverse = np.unique(key, return_index=True, return_inverse=True)
+            faces = inverse.ravel()[layout.sub_triangle_entries()]
+            site_face = layout.entry_face[first]
+            site = value_site = layout.entry_barycentrics()[first]
         corners = mesh.faces[site_face]
         weights = np.stack([1 - site[:, 0] - site[:, 1], site[:, 0], site[:, 1]], -1)[..., None]
         vertices = (mesh.vertices[corners] * weights).sum(1)
@@ -294,7 +308,7 @@ class MeshColorMaterial(Material):
     def save(self, path: str | Path) -> None:
         """Write the material state (npz, atomic) for --resume."""
         arrays = {"kind": np.array(self.KIND), "faces": self.layout.faces, "vertices": self.vertices, "labels": self.labels,
-                  "resolution": np.array(self.resolution), "n_materials": np.array(self.n_materials),
+                  "resolution": np.array(self.resolution), "resolutions": self.resolutions, "n_materials": np.array(self.n_materials),
                   "light_factor": np.array(self.light_factor)}
         for name, ch in self.channels.items():
             arrays[f"{ch.kind}:{name}"] = self.values(name)
@@ -306,7 +320,8 @@ class MeshColorMaterial(Material):
     def load(cls, path: str | Path) -> "MeshColorMaterial":
         data = np.load(path)
         mesh = Mesh(data["vertices"], data["faces"])
-        material = cls(mesh, int(data["resolution"]), data["labels"], int(data["n_materials"]))
+        resolution = data["resolutions"] if "resolutions" in data.files else int(data["resolution"])
+        material = cls(mesh, resolution, data["labels"], int(data["n_materials"]))
         material.light_factor = float(data["light_factor"])
         for key in data.files:
             if ":" in key:
@@ -318,10 +333,14 @@ class MeshColorMaterial(Material):
         """Per-material constants (or means of mesh colors) for reports."""
         out = {"resolution": self.resolution, "materials": self.n_materials, "light_factor": self.light_factor,
                "channels": {n: ch.kind for n, ch in self.channels.items()}}
+        if not self.layout.uniform:
+            r = self.resolutions
+            out["resolutions"] = {"min": int(r.min()), "median": float(np.median(r)), "max": int(r.max()),
+                                  "samples": int(self.layout.n_samples)}
         for name, ch in self.channels.items():
             vals = self.values(name)
             if ch.kind == "colors":
-                per_face = vals[self.layout.table].mean(1)
+                per_face = self.layout.face_means(vals)
                 vals = np.array([per_face[self.labels == m].mean(0) if np.any(self.labels == m)
                                  else np.full(vals.shape[1], np.nan) for m in range(self.n_materials)])
             out[name] = np.round(vals, 4).tolist()
