@@ -1,10 +1,14 @@
 """Baked textures and glTF 2.0 export of a reconstructed mesh with its material (numpy, json,
 struct, Pillow; no bpy).
 
-The atlas is a grid of square cells, one per face: the face occupies the right triangle
-(1, 1), (c - 1, 1), (1, c - 1) of its c x c texel cell, so bilinear filtering never reads
-another face's cell; texels outside the triangle hold the value at the nearest point of
-the triangle. Every texel is evaluated exactly from the material (mesh colors or constants).
+The atlas holds one square cell per face: the face occupies the right triangle (1, 1),
+(c - 1, 1), (1, c - 1) of its c x c texel cell, so bilinear filtering never reads another
+face's cell; texels outside the triangle hold the value at the nearest point of the
+triangle. Every texel is evaluated exactly from the material (mesh colors or constants).
+A face's cell follows its own mesh-color resolution r_f, c = 2 r_f + 3 (two texels per sample
+interval), so the texture is as fine as the finest faces and its size grows with the faces'
+count; cells are packed in rows, largest first, into a near-square atlas of at most
+MAX_ATLAS texels a side (cells shrink together, to at least 3 texels, when they do not fit).
 
 glTF mapping (metallic-roughness, metallic = 0): baseColorTexture = albedo (sRGB PNG),
 metallicRoughnessTexture green = roughness (glTF alpha = roughness^2, as SurfaceBSDF),
@@ -42,33 +46,65 @@ class Atlas:
     roughness: np.ndarray  # (H, W)
 
 
+def cell_sizes(material: MeshColorMaterial, cell: int | None = None) -> np.ndarray:
+    """(F,) texel cell side of each face: ``cell``, or 2 r_f + 3 (at least 4) from its resolution."""
+    if cell is not None:
+        return np.full(material.n_faces, int(cell), np.int64)
+    spatial = any(ch.kind == "colors" for ch in material.channels.values())
+    r = material.resolutions if spatial else np.zeros(material.n_faces, np.int64)
+    return np.maximum(4, 2 * r + 3).astype(np.int64)
+
+
+def pack_cells(sizes: np.ndarray, limit: int = MAX_ATLAS) -> tuple[np.ndarray, np.ndarray, int, int]:
+    """Shelf packing of square cells: rows filled left to right with cells in decreasing size,
+    in an atlas about as wide as it is high. Cells shrink by a common factor (to at least 3
+    texels) until the atlas fits ``limit`` x ``limit``. Returns (sizes, origins (F, 2) x, y, W, H)."""
+    sizes = np.asarray(sizes, np.int64)
+    F = len(sizes)
+    order = np.argsort(-sizes, kind="stable")
+    scale = 1.0
+    while True:
+        c = np.maximum(3, np.floor(sizes * scale).astype(np.int64))
+        width = int(max(c.max(initial=3), math.ceil(math.sqrt(float((c ** 2).sum())))))
+        width = min(width, limit)
+        origin = np.zeros((F, 2), np.int64)
+        x = y = row = 0
+        for f in order:
+            if x + c[f] > width:
+                x, y, row = 0, y + row, 0
+            origin[f] = (x, y)
+            x += c[f]
+            row = max(row, c[f])
+        height = y + row
+        if height <= limit or c.max(initial=3) <= 3:
+            return c, origin, width, max(height, 1)
+        scale *= 0.97 * math.sqrt(limit / height)
+
+
 def bake_atlas(mesh: Mesh, material: MeshColorMaterial, cell: int | None = None) -> Atlas:
     """Bake the material into per-face texture cells (see the module docstring)."""
     F = mesh.n_faces
-    cols = math.ceil(math.sqrt(F))
-    rows = math.ceil(F / cols)
-    c = cell or max(4, 2 * material.resolution + 3)
-    c = max(3, min(c, MAX_ATLAS // max(cols, rows)))
-    W, H = cols * c, rows * c
-    corners = np.array([[1.0, 1.0], [c - 1.0, 1.0], [1.0, c - 1.0]])  # texel units inside a cell
-    origin = np.stack([np.arange(F) % cols, np.arange(F) // cols], 1) * c
-    uv = (origin[:, None, :] + corners[None]) / np.array([W, H])
-    # Barycentrics of every texel centre of a cell, clamped onto the triangle.
-    centres = np.stack(np.meshgrid(np.arange(c) + 0.5, np.arange(c) + 0.5, indexing="xy"), -1).reshape(-1, 2)
-    flat = lambda p: np.c_[p, np.zeros(len(p))]  # noqa: E731
-    n = len(centres)
-    bary = closest_on_triangles(flat(centres), *(np.repeat(flat(corners[k:k + 1]), n, 0) for k in range(3)))
-    face = np.repeat(np.arange(F), n)
-    vals = material.evaluate(face, np.tile(bary[:, 1], F), np.tile(bary[:, 2], F))
-    ty, tx = np.divmod(np.arange(n), c)
-    rows_idx = (origin[:, 1:2] + ty[None]).ravel()
-    cols_idx = (origin[:, 0:1] + tx[None]).ravel()
+    c, origin, W, H = pack_cells(cell_sizes(material, cell))
     albedo = np.zeros((H, W, 3), np.float32)
     spec = np.zeros((H, W), np.float32)
     rough = np.ones((H, W), np.float32)
-    albedo[rows_idx, cols_idx] = vals["albedo"]
-    spec[rows_idx, cols_idx] = vals["specular"][:, 0]
-    rough[rows_idx, cols_idx] = vals["roughness"][:, 0]
+    uv = np.zeros((F, 3, 2))
+    flat = lambda p: np.c_[p, np.zeros(len(p))]  # noqa: E731
+    for size in np.unique(c):
+        faces = np.flatnonzero(c == size)
+        corners = np.array([[1.0, 1.0], [size - 1.0, 1.0], [1.0, size - 1.0]])  # texel units inside a cell
+        uv[faces] = (origin[faces, None, :] + corners[None]) / np.array([W, H])
+        # barycentrics of every texel centre of a cell, clamped onto the triangle
+        centres = np.stack(np.meshgrid(np.arange(size) + 0.5, np.arange(size) + 0.5, indexing="xy"), -1).reshape(-1, 2)
+        n = len(centres)
+        bary = closest_on_triangles(flat(centres), *(np.repeat(flat(corners[k:k + 1]), n, 0) for k in range(3)))
+        vals = material.evaluate(np.repeat(faces, n), np.tile(bary[:, 1], len(faces)), np.tile(bary[:, 2], len(faces)))
+        ty, tx = np.divmod(np.arange(n), size)
+        rows_idx = (origin[faces, 1:2] + ty[None]).ravel()
+        cols_idx = (origin[faces, 0:1] + tx[None]).ravel()
+        albedo[rows_idx, cols_idx] = vals["albedo"]
+        spec[rows_idx, cols_idx] = vals["specular"][:, 0]
+        rough[rows_idx, cols_idx] = vals["roughness"][:, 0]
     return Atlas(uv, albedo, spec, rough)
 
 

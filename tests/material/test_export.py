@@ -113,3 +113,34 @@ def test_blender_imports_the_glb(tmp_path):
     third = np.full(40, 1 / 3)
     expected = linear_to_srgb(m.evaluate(np.arange(40), third, third)["albedo"])
     assert np.abs(np.array(out["centre_colours"]) - expected).max() < 0.03
+
+
+def test_atlas_of_mixed_resolutions_reproduces_the_material_and_follows_the_finest_faces():
+    mesh = procedural.blob(2)
+    m = smooth_material(mesh, 2)
+    rng = np.random.default_rng(5)
+    res = rng.integers(1, 4, mesh.n_faces)
+    res[:10] = 12  # a few fine faces
+    m.set_resolution(res)
+    pos = m.layout.sample_positions(mesh.vertices)
+    m.set_values("albedo", procedural.albedo_pattern(pos, 3.0))
+    atlas = export.bake_atlas(mesh, m)
+    sizes = export.cell_sizes(m)
+    assert sizes.max() == 2 * 12 + 3 and sizes.min() == 2 * 1 + 3
+    H, W = atlas.albedo.shape[:2]
+    assert H * W >= int((sizes ** 2).sum()) and H * W < 2 * int((sizes ** 2).sum())
+    # the fine faces' triangles span their large cells (u extent in texels)
+    extent = (atlas.uv[:10, 1, 0] - atlas.uv[:10, 0, 0]) * W
+    assert np.allclose(extent, 2 * 12 + 1)
+    face, b = random_points(mesh.n_faces, 4000, rng)
+    uv = np.einsum("nk,nkd->nd", b, atlas.uv[face])
+    truth = m.evaluate(face, b[:, 1], b[:, 2])
+    got = export.sample_bilinear(atlas.albedo, uv)
+    assert np.abs(got - truth["albedo"]).mean() < 3e-3
+
+
+def test_packing_shrinks_cells_to_fit_the_limit():
+    sizes = np.full(500, 27)
+    c, origin, W, H = export.pack_cells(sizes, limit=256)
+    assert W <= 256 and H <= 256 and c.max() < 27
+    assert np.all(origin[:, 0] + c <= W) and np.all(origin[:, 1] + c <= H)
