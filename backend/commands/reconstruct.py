@@ -60,6 +60,12 @@ def add_arguments(parser):
     parser.add_argument("--max-size", type=int, metavar="PX", help=f"long side of the finest images ({d.max_size})")
     parser.add_argument("--coarse-size", type=int, metavar="PX",
                         help=f"long side of the first level's images ({d.coarse_size})")
+    parser.add_argument("--texture-stage", choices=["auto", "on", "off"],
+                        help="a last material fit at the frames' own size, each face's mesh-color resolution "
+                             "set by the frames' pixel footprint on it (auto, the default: when the frames are "
+                             "larger than --max-size; report.json texture_stage)")
+    parser.add_argument("--texture-size", type=int, metavar="PX",
+                        help="with the texture stage: the most pixels on its images' long side (default: the frames')")
     parser.add_argument("--views-per-step", type=int, metavar="K", help=f"views rendered per step ({d.views_per_step})")
     parser.add_argument("--material", default=None,
                         help="'staged' (the default: spatially varying mesh colors, fitted as constants, then "

@@ -24,6 +24,9 @@ POLISH_RESERVE_CYCLES = 1.75
 # written after the budget's last step: held back as this many times the last snapshot's
 # seconds, and at least FINISH_MIN_S
 FINISH_SNAPSHOTS = 3.0
+# the final texture stage at the frames' own size (optimize.texture_stage), when it runs: this
+# share of a time budget is held back from the material stages and polish rounds for it
+TEXTURE_RESERVE = 0.1
 FINISH_MIN_S = 2.0
 
 
@@ -47,10 +50,13 @@ class Budget:
         self.remaining = None  # planning.remaining.Remaining, once the run has a plan
         self.snapshot_s = 0.0  # what the last snapshot took to write
         self.metrics_s = 0.0  # what scoring the mesh against a true one took, when the run does
+        self.texture_share = 0.0  # the share held back for the texture stage until it starts
 
     def finish_s(self) -> float:
-        """Seconds held back for writing the results once the last step has run."""
-        return max(FINISH_MIN_S, FINISH_SNAPSHOTS * self.snapshot_s) + self.metrics_s
+        """Seconds held back for writing the results once the last step has run (and, until
+        it starts, for the texture stage: ``texture_share`` of the budget)."""
+        held = self.texture_share * (self.config.time_budget_s or 0.0)
+        return max(FINISH_MIN_S, FINISH_SNAPSHOTS * self.snapshot_s) + self.metrics_s + held
 
     def elapsed(self) -> float:
         return self.state.seconds_before + time.perf_counter() - self.t0
@@ -88,8 +94,9 @@ class Budget:
         return not (budget and self.elapsed() + seconds + self.finish_s() > budget)
 
     def geometry_reserve(self) -> float:
-        """The share the geometry levels leave to the material stages on the final geometry."""
-        return GEOMETRY_RESERVE if self.staged else 0.0
+        """The share the geometry levels leave to the material stages on the final geometry
+        (the texture stage's share, held back in ``finish_s``, comes out of it)."""
+        return max(0.0, GEOMETRY_RESERVE - self.texture_share) if self.staged else 0.0
 
     def polish_reserve(self) -> float:
         """The share polish rounds leave to what follows them (``polish_share``), measured on the

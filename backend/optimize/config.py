@@ -77,6 +77,12 @@ class ReconstructConfig:
     polish_length: int = 2
     polish_warmup: int = 10  # steps over which the step grows to its full length
     polish_divergence: float = 0.25  # a validation loss this much above the best: back, step halved
+    # the final texture stage at the frames' own size (backend.optimize.texture_stage): auto (when
+    # the frames are larger than max_size), on or off; texture_size caps its images' long side
+    # (None: the frames' own); texture_iterations: its most Adam iterations
+    texture_stage: str = "auto"
+    texture_size: int | None = None
+    texture_iterations: int = 60
     # re-meshing between levels: auto = when ray casting finds back faces or geometry outside
     # the masks on more than remesh_threshold of the hits
     remesh: str = "auto"

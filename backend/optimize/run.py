@@ -27,6 +27,7 @@ from .progress import LockedEmitter, Paced, Progress, StopOnProgress
 from .records import LevelRecord, RunState
 from .run_folder import Result, RunFolder, StopRequested, snapshot_interval
 from .stiffness import choose as choose_stiffness
+from .texture_stage import TextureStage
 from .transition import transition
 from .views import ViewSet
 
@@ -116,6 +117,8 @@ class Reconstruction:
         self.appearance = Appearance(capture, config, emit)
         self.appearance.start_lighting(folder.path, resume)
         self.budget = self.paced.budget = Budget(config, self.state, staged=self.appearance.staged, started=started)
+        self.texture = TextureStage(capture, config, self.appearance.staged)
+        self.budget.texture_share = self.texture.reserve_share()
         self.level_limit = level_limit
         self.planner = None  # called once after the first level (``reconstruct``)
         self.accuracy.clock = self.budget.elapsed
@@ -196,6 +199,7 @@ class Reconstruction:
                 getattr(self, method)()
                 s.phase = after
         self.appearance.settle(s.mesh, self.material, self.viewset.at(self.config.max_size), s.level)
+        self.texture.run(s.mesh, self.material, self.appearance, self.budget, self.emit, s.level)
 
     def _levels(self) -> None:
         """Geometry levels, each followed by a material cycle and a snapshot, with a transition
@@ -370,7 +374,7 @@ class Reconstruction:
             "timings": {**s.timings, "total": round(self.budget.elapsed(), 3)},
             "material": self.material.summary(), "metrics": metrics,
             "premultiplied_views": self.viewset.premultiplied,
-            "accuracy_time": tracked, "next_level": expected,
+            "accuracy_time": tracked, "next_level": expected, "texture_stage": self.texture.record,
             **self.appearance.finish(self.folder.path, s.mesh, self.material),
         }
         fsio.write_json(self.folder.path / "report.json", report)
