@@ -374,7 +374,7 @@ class Reconstruction:
             "timings": {**s.timings, "total": round(self.budget.elapsed(), 3)},
             "material": self.material.summary(), "metrics": metrics,
             "premultiplied_views": self.viewset.premultiplied,
-            "accuracy_time": tracked, "next_level": expected, "texture_stage": self.texture.record,
+            "accuracy_time": tracked, "next_level": expected, "texture_stage": self.texture.report(s.levels),
             **self.appearance.finish(self.folder.path, s.mesh, self.material),
         }
         fsio.write_json(self.folder.path / "report.json", report)

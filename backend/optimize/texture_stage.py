@@ -70,6 +70,11 @@ class TextureStage:
         self.record: dict = {"mode": mode, "enabled": self.enabled, "reason": reason, "size": self.size,
                              "fit_size": config.max_size, "ran": False}
 
+    def report(self, levels) -> dict:
+        """``report.json`` ``texture_stage``: the stage's record and ``sizes``, the image size
+        each stage of the run fitted (``levels``: the run's LevelRecords)."""
+        return dict(self.record, sizes=_sizes(levels, self.config.max_size, self.record))
+
     def reserve_share(self) -> float:
         """The share of a time budget held back for this stage (0 when it does not run)."""
         return TEXTURE_RESERVE if self.enabled else 0.0
@@ -138,6 +143,12 @@ class TextureStage:
             "last_loss": losses[-1] if losses else None, "seconds": round(time.perf_counter() - start, 3)})
         emit("texture", **self.record)
         return self.record
+
+
+def _sizes(levels, fit_size: int, record: dict) -> dict:
+    """The image size (long side, pixels) each stage of the run fitted."""
+    return {"levels": [lv.size for lv in levels if not lv.polish], "polish": [lv.size for lv in levels if lv.polish],
+            "final_material": fit_size, "texture": max(record["image_size"]) if record.get("kept") else None}
 
 
 def _save(material) -> dict:

@@ -120,3 +120,24 @@ def test_auto_runs_the_stage_only_for_frames_larger_than_the_fit(tmp_path):
     assert not TextureStage(capture, ReconstructConfig(max_size=32), staged=False).enabled
     capped = TextureStage(capture, ReconstructConfig(max_size=32, texture_size=48), staged=True)
     assert capped.size == 48 and capped.reserve_share() > 0
+
+
+def test_the_command_line_switches_the_stage():
+    import argparse
+
+    from backend.commands import reconstruct
+    from backend.errors import InputError
+    from backend.planning.job import config_from_args
+
+    parser = argparse.ArgumentParser()
+    reconstruct.add_arguments(parser)
+    config = config_from_args(parser.parse_args(["cap", "--out", "run"]))
+    assert config.texture_stage == "auto" and config.texture_size is None
+    config = config_from_args(parser.parse_args(["cap", "--out", "run", "--texture-stage", "off", "--texture-size", "512"]))
+    assert config.texture_stage == "off" and config.texture_size == 512
+    try:
+        config_from_args(parser.parse_args(["cap", "--out", "run", "--texture-size", "0"]))
+    except InputError as err:
+        assert "--texture-size" in str(err)
+    else:
+        raise AssertionError("--texture-size 0 was accepted")
