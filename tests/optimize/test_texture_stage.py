@@ -1,7 +1,12 @@
 """The final texture stage: resolution from the frames' pixel footprint, and a fit at the
 frames' own size that renders the fitted views better than the run's material did."""
 
+import argparse
+import io
+import json
+
 import numpy as np
+from PIL import Image
 
 from backend import variant
 
@@ -10,9 +15,13 @@ variant.choose()
 from backend.capture.format import save_capture  # noqa: E402
 from backend.capture.images import write_image, write_mask  # noqa: E402
 from backend.capture.model import Camera, Capture, Frame  # noqa: E402
+from backend.commands import reconstruct  # noqa: E402
+from backend.errors import InputError  # noqa: E402
 from backend.geometry.mesh import Mesh  # noqa: E402
 from backend.geometry.primitives import icosphere  # noqa: E402
 from backend.render.fields import VertexField  # noqa: E402
+from backend.material import export  # noqa: E402
+from backend.material.export import read_glb  # noqa: E402
 from backend.material.footprint import face_footprints, footprint_resolutions  # noqa: E402
 from backend.material.model import MeshColorMaterial  # noqa: E402
 from backend.material.stages import FitSettings, fit  # noqa: E402
@@ -23,8 +32,10 @@ from backend.optimize.config import ReconstructConfig  # noqa: E402
 from backend.optimize.records import RunState  # noqa: E402
 from backend.optimize.texture_stage import TextureStage  # noqa: E402
 from backend.optimize.views import ViewSet  # noqa: E402
+from backend.planning.job import config_from_args  # noqa: E402
 from backend.render.scene import RenderSettings, SceneRenderer  # noqa: E402
 from backend.synth import layout  # noqa: E402
+from tests.helpers import run_cli  # noqa: E402
 
 SIZE, FIT_SIZE, RADIUS = 96, 32, 0.5
 
@@ -123,12 +134,6 @@ def test_auto_runs_the_stage_only_for_frames_larger_than_the_fit(tmp_path):
 
 
 def test_the_command_line_switches_the_stage():
-    import argparse
-
-    from backend.commands import reconstruct
-    from backend.errors import InputError
-    from backend.planning.job import config_from_args
-
     parser = argparse.ArgumentParser()
     reconstruct.add_arguments(parser)
     config = config_from_args(parser.parse_args(["cap", "--out", "run"]))
@@ -141,3 +146,30 @@ def test_the_command_line_switches_the_stage():
         assert "--texture-size" in str(err)
     else:
         raise AssertionError("--texture-size 0 was accepted")
+
+
+def test_a_run_ends_with_the_stage_and_exports_its_texture(tiny_capture, tmp_path):
+    """``reconstruct`` on 48 px frames fitted at 24 px: the stage runs (auto), its record and
+    the sizes of every stage are in report.json, and the glTF atlas follows the finest faces."""
+    run = tmp_path / "run"
+    proc = run_cli("reconstruct", tiny_capture, "--out", run, "--max-size", 24, "--coarse-size", 24,
+                   "--initial-faces", 400, "--iterations", 20, "--max-levels", 1, "--level-iterations", 20,
+                   "--spp", 4, "--material", "staged", timeout=600)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    report = json.loads((run / "report.json").read_text())
+    stage = report["texture_stage"]
+    assert stage["enabled"] and stage["ran"] and stage["image_size"] == [48, 48] and stage["fit_size"] == 24
+    assert stage["sizes"]["levels"] == [24] and stage["sizes"]["final_material"] == 24
+    assert stage["kept"] and stage["loss_after"] < stage["loss_before"] and stage["sizes"]["texture"] == 48
+    assert report["material"]["resolutions"]["max"] == stage["resolution"]["max"]
+    # the saved material has the stage's per-face resolutions, and the atlas packs their cells
+    material = MeshColorMaterial.load(sorted((run / "state").glob("*.material.npz"))[-1])
+    assert not material.layout.uniform and material.resolution == stage["resolution"]["max"]
+    _, _, width, height = export.pack_cells(export.cell_sizes(material))
+    gltf, blob = read_glb(run / "result.glb")
+    view = gltf["bufferViews"][gltf["images"][0]["bufferView"]]
+    png = Image.open(io.BytesIO(blob[view["byteOffset"]:view["byteOffset"] + view["byteLength"]]))
+    assert png.size == (width, height)
+    log = [json.loads(line) for line in (run / "events.jsonl").read_text().splitlines()]
+    assert any(e["event"] == "stage" and e["stage"] == "texture" for e in log)
+    assert any(e["event"] == "texture" for e in log)
