@@ -25,7 +25,11 @@ def capture_dir(context, override: str = "", must_exist: bool = True) -> Path:
 RUNNING = {"install": "the backend is being installed", "import": "cameras are being imported",
            "solve": "the cameras are being solved: wait for it or cancel it",
            "reconstruct": "a reconstruction is running: wait for it or cancel it",
-           "plan": "Plan is measuring the capture's step costs and accuracy: wait for it or cancel it"}
+           "plan": "Plan is measuring the capture's step costs and accuracy: wait for it or cancel it",
+           "video": "a video is being imported: wait for it or cancel it",
+           "masks": "masks are being imported: wait for it or cancel it",
+           "preview": "a relit preview is rendering: wait for it or cancel it",
+           "export": "the glTF export is baking: wait for it or cancel it"}
 
 
 def idle(cls, *kinds: str) -> bool:
