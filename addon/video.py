@@ -54,6 +54,7 @@ def frame_steps(path: str | Path, frames: list[int], out_dir: str | Path):
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     scene = bpy.data.scenes.new(".sft_video")
+    had_result = {image.name for image in bpy.data.images if image.type == "RENDER_RESULT"}
     try:
         editor = scene.sequence_editor_create()
         strips = editor.strips if hasattr(editor, "strips") else editor.sequences  # 4.4 renamed it
@@ -81,3 +82,5 @@ def frame_steps(path: str | Path, frames: list[int], out_dir: str | Path):
         return written
     finally:
         bpy.data.scenes.remove(scene)
+        for image in [i for i in bpy.data.images if i.type == "RENDER_RESULT" and i.name not in had_result]:
+            bpy.data.images.remove(image)  # the sequencer's renders leave the scene's images as they were
