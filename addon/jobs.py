@@ -249,6 +249,8 @@ def _drain() -> float | None:
     running = [job for job in ACTIVE.values() if job.running and isinstance(job, Job)]
     for job in running:
         job.process.poll()
+        if isinstance(job, WorkerJob) and job.process.finished:
+            job.cleanup()  # nobody takes its result any more
     return 0.2 if running else None
 
 

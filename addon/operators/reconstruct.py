@@ -159,7 +159,7 @@ def _load_estimated_lighting(context, run_dir) -> str:
 
 class SFT_OT_reconstruct(_ReconstructModal, bpy.types.Operator):
     """Reconstruct shape and material in a background process; the mesh updates live.
-    Esc or Cancel stops it cleanly and keeps the last snapshot"""
+    Cancel (or Esc over the sidebar) stops it cleanly and keeps the last snapshot"""
 
     bl_idname = "sft.reconstruct"
     bl_label = "Reconstruct"
