@@ -90,7 +90,7 @@ def worker_argv(args: list[str]) -> list[str]:
     program), or this interpreter where Blender is the bpy module (it has no program)."""
     binary = bpy.app.binary_path
     if binary and Path(binary).is_file() and Path(sys.executable).resolve() != Path(binary).resolve():
-        return [binary, "--background", "--python", str(WORKER), "--", *args]
+        return [binary, "--background", "--python-exit-code", "1", "--python", str(WORKER), "--", *args]
     return [sys.executable, str(WORKER), *args]
 
 
@@ -105,6 +105,8 @@ class WorkerJob(Job):
         super().__init__(sys.executable, [], None, kind=kind, argv=worker_argv(args))
 
     def on_finish(self, context) -> None:
+        if self.state.status == "cancelled":
+            self.state.message = "nothing was changed"
         if self.state.status != "done":
             self.cleanup()
 

@@ -93,6 +93,10 @@ class SFT_OT_export_gltf(bpy.types.Operator, ExportHelper, JobModal):
                 self.report({"ERROR"} if job.state.status == "failed" else {"WARNING"},
                             f"Export glTF {job.state.status}: {job.state.message}")
                 return {"CANCELLED"}
+            if not (job.folder / "out.glb").is_file():
+                log = job.process.log_tail(3).replace("\n", " | ")
+                return fail(self, AddonInputError(None, f"the export wrote no file ({log or 'no log'})",
+                                                  "run Export glTF again, or without Bake Textures"))
             try:
                 os.replace(job.folder / "out.glb", self.out)
             except OSError as err:
