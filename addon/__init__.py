@@ -16,9 +16,9 @@ ROOT_PACKAGE = __package__.rpartition(".")[0] or __package__  # the extension's 
 
 
 def _modules():
-    from . import operators, preferences, properties, ui
+    from . import capture_state, operators, preferences, properties, ui
 
-    return (preferences, properties, operators, ui)
+    return (preferences, properties, capture_state, operators, ui)
 
 
 def register():

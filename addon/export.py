@@ -8,10 +8,17 @@ transform.
 
 Otherwise (the object was edited, or the run stopped before its end) a temporary copy of
 the object gets a triangle-atlas UV map (two triangles per square cell, kept apart by a
-texel gap); Cycles bakes its albedo (the colour attribute through the material) and
-roughness into images, and Blender's glTF exporter writes the copy with a Principled
-material that reads those textures (or, without baking, the colour attribute as vertex
-colours). The user's scene is left as it was."""
+texel gap); Cycles bakes its albedo (the colour attribute through the material),
+roughness and specular into images, and Blender's glTF exporter writes the copy with a
+Principled material that reads those textures (or, without baking, the colour attribute
+as vertex colours). The user's scene is left as it was.
+
+Specular per texel: the texture holds s / s_max (sRGB-encoded, as glTF reads a specular
+colour texture) into Specular Tint, and Specular IOR Level is 0.5 s_max / 0.04, so that
+F0 = 0.04 (IOR 1.5) x 2 x level x tint = s in Cycles; the glTF exporter turns that level
+into specularFactor (below 1) or folds it into specularColorFactor (above 1), which gives
+F0 = s in KHR_materials_specular too. The add-on bakes in a child Blender
+(``addon/worker.py export``), so Blender's UI never waits on Cycles."""
 
 import json
 import math
@@ -106,7 +113,7 @@ def texture_size(n_faces: int) -> int:
 
 
 def _bake(context, scene, obj, image, kind: str) -> None:
-    """Bake ``kind`` (DIFFUSE colour or ROUGHNESS) of ``obj``'s material into ``image``."""
+    """Bake ``kind`` (DIFFUSE colour, ROUGHNESS, or EMIT) of ``obj``'s material into ``image``."""
     nodes = obj.active_material.node_tree.nodes
     target = nodes.get(".sft_bake") or nodes.new("ShaderNodeTexImage")
     target.name = ".sft_bake"
@@ -122,19 +129,30 @@ def _bake(context, scene, obj, image, kind: str) -> None:
 F0_DIELECTRIC = 0.04  # glTF's F0 at specularFactor 1 and a white specular colour
 
 
-def mean_attribute(mesh, name: str) -> float | None:
+def attribute_values(mesh, name: str) -> np.ndarray | None:
     values = mesh.attributes.get(name)
     if values is None or not len(values.data):
         return None
     buf = np.empty(len(values.data), np.float32)
     values.data.foreach_get("value", buf)
-    return float(buf.mean())
+    return buf
 
 
-def _set_specular(bsdf, mesh) -> None:
-    """KHR_materials_specular as the backend's result.glb writes it: specularFactor 1
-    (Specular IOR Level 0.5) and a specular colour of specular / 0.04, so F0 = specular at
-    normal incidence (the mean over the surface: the exporter takes one colour factor)."""
+def mean_attribute(mesh, name: str) -> float | None:
+    values = attribute_values(mesh, name)
+    return None if values is None else float(values.mean())
+
+
+def _set_specular(bsdf, mesh, texture: bpy.types.Image | None = None, peak: float = 0.0) -> None:
+    """KHR_materials_specular with F0 = specular at normal incidence: per texel from
+    ``texture`` (specular / ``peak``, the module docstring), else the mean over the surface
+    (Specular IOR Level 0.5, a specular colour of specular / 0.04)."""
+    if texture is not None:
+        tex = bsdf.id_data.nodes.new("ShaderNodeTexImage")
+        tex.image = texture
+        bsdf.id_data.links.new(tex.outputs["Color"], bsdf.inputs["Specular Tint"])
+        bsdf.inputs["Specular IOR Level"].default_value = 0.5 * peak / F0_DIELECTRIC
+        return
     specular = mean_attribute(mesh, "specular")
     if specular is None:
         return
@@ -143,16 +161,33 @@ def _set_specular(bsdf, mesh) -> None:
     bsdf.inputs["Specular Tint"].default_value = (tint, tint, tint, 1.0)
 
 
-def _export_material(mesh, color: bpy.types.Image | None, roughness: bpy.types.Image | None) -> bpy.types.Material:
+def _specular_material(peak: float) -> bpy.types.Material:
+    """Emission of specular / ``peak`` (the ``specular`` attribute), for baking it with EMIT."""
+    mat = bpy.data.materials.new(".sft_bake_specular")
+    if bpy.app.version < (5, 0, 0):  # always on (and deprecated) from Blender 5
+        mat.use_nodes = True
+    nodes, links = mat.node_tree.nodes, mat.node_tree.links
+    nodes.clear()
+    attr, emission, out = (nodes.new(t) for t in ("ShaderNodeAttribute", "ShaderNodeEmission", "ShaderNodeOutputMaterial"))
+    attr.attribute_name = "specular"
+    links.new(attr.outputs["Fac"], emission.inputs["Color"])
+    emission.inputs["Strength"].default_value = 1.0 / peak
+    links.new(emission.outputs["Emission"], out.inputs["Surface"])
+    return mat
+
+
+def _export_material(mesh, color: bpy.types.Image | None, roughness: bpy.types.Image | None,
+                     specular: bpy.types.Image | None = None, peak: float = 0.0) -> bpy.types.Material:
     """A Principled BSDF the glTF exporter understands: baked textures, or the colour
-    attribute as base colour with the mean roughness; the specular lobe as KHR_materials_specular."""
+    attribute as base colour with the mean roughness; the specular lobe as KHR_materials_specular
+    (per texel from ``specular``, the baked specular / ``peak``)."""
     mat = bpy.data.materials.new(".sft_export")
     if bpy.app.version < (5, 0, 0):  # always on (and deprecated) from Blender 5
         mat.use_nodes = True
     nodes, links = mat.node_tree.nodes, mat.node_tree.links
     bsdf = next(n for n in nodes if n.type == "BSDF_PRINCIPLED")
     bsdf.inputs["Metallic"].default_value = 0.0
-    _set_specular(bsdf, mesh)
+    _set_specular(bsdf, mesh, specular, peak)
     if color is not None:
         tex = nodes.new("ShaderNodeTexImage")
         tex.image = color
@@ -193,10 +228,13 @@ def _export_selected(context, obj: bpy.types.Object, path: Path) -> None:
 
 
 def export_gltf(context, obj: bpy.types.Object, path: Path, bake: bool = True, size: int = 0,
-                samples: int = 1, device: str = "AUTO") -> dict:
+                samples: int = 1, device: str = "AUTO", use_run: bool = True, progress=None) -> dict:
     """Write ``obj`` as binary glTF; returns what was written (``source``: ``run`` for the
-    run's own result, ``scene`` for what was baked or written from the scene)."""
-    if bake and not size:
+    run's own result, ``scene`` for what was baked or written from the scene). ``use_run``:
+    write the run's own result when the object shows it unchanged; ``progress(fraction,
+    stage)`` is called before each bake and before writing."""
+    progress = progress or (lambda fraction, stage: None)
+    if use_run and bake and not size:
         result = run_result(obj)
         if result is not None:
             return write_run_glb(result, path, obj.name, obj.matrix_world)
@@ -209,7 +247,8 @@ def export_gltf(context, obj: bpy.types.Object, path: Path, bake: bool = True, s
     info = {"path": str(path), "faces": len(mesh.polygons), "texture_size": 0, "source": "scene"}
     name = obj.name
     try:
-        color = rough = None
+        color = rough = spec = None
+        peak = 0.0
         if bake:
             size = size or texture_size(len(mesh.polygons))
             uv = mesh.uv_layers.new(name="UVMap")
@@ -225,12 +264,25 @@ def export_gltf(context, obj: bpy.types.Object, path: Path, bake: bool = True, s
             rough = bpy.data.images.new(f"{name}_roughness", size, size, alpha=False)
             rough.colorspace_settings.name = "Non-Color"
             made_images += [color, rough]
+            progress(0.05, "baking albedo")
             _bake(context, scene, copy, color, "DIFFUSE")
+            progress(0.35, "baking roughness")
             _bake(context, scene, copy, rough, "ROUGHNESS")
+            values = attribute_values(mesh, "specular")
+            peak = float(values.max()) if values is not None else 0.0
+            if peak > 0:
+                progress(0.65, "baking specular")
+                spec = bpy.data.images.new(f"{name}_specular", size, size, alpha=False)
+                made_images.append(spec)
+                made_materials.append(_specular_material(peak))
+                mesh.materials[0] = made_materials[-1]
+                _bake(context, scene, copy, spec, "EMIT")
+                mesh.materials[0] = baking
             for attr in list(mesh.color_attributes):  # glTF multiplies COLOR_0 into the base colour
                 mesh.color_attributes.remove(attr)
             info["texture_size"] = size
-        made_materials.append(_export_material(mesh, color, rough))
+        progress(0.9, "writing glTF")
+        made_materials.append(_export_material(mesh, color, rough, spec, peak))
         mesh.materials.clear()
         mesh.materials.append(made_materials[-1])
         path.parent.mkdir(parents=True, exist_ok=True)

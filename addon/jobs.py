@@ -1,14 +1,23 @@
-"""Backend runs inside Blender: one process, its state, and what reaches the scene.
+"""Long work inside Blender: a job, its state, and what reaches the scene.
 
 :meth:`Job.step` is the single update function: a modal timer calls it in the UI and the
-headless path calls it in a loop (timers never fire in background mode). A reconstruction
-job streams the newest snapshot mesh into the "Reconstruction" object."""
+headless path calls it in a loop (timers never fire in background mode). Three kinds:
+
+- :class:`Job`: a child process speaking the JSON-lines protocol (the backend, or a
+  background Blender running ``addon/worker.py``), read without blocking;
+- :class:`TaskJob`: work that must run in Blender's own process (bpy data), cut into
+  chunks by a generator, one chunk per step;
+- :class:`ReconstructJob`: a backend run whose newest snapshot streams into the
+  "Reconstruction" object."""
 
 from __future__ import annotations
 
 import json
+import shutil
+import sys
 import time
 from pathlib import Path
+from typing import Callable, Iterator
 
 import bpy
 
@@ -19,7 +28,8 @@ from .io.ply import read_display_mesh
 from .io.process import BackendProcess
 from .io.progress import RunState
 
-ACTIVE: dict[str, "Job"] = {}  # kind ("reconstruct", "solve") -> the job the panel shows
+ACTIVE: dict[str, "Job"] = {}  # kind ("reconstruct", "solve", "video", ...) -> the job the panel shows
+LISTENERS: list[Callable] = []  # called with (context, job) when a job ends: cached panel state refreshes
 
 
 class Job:
@@ -52,8 +62,12 @@ class Job:
             return True
         if not self._settled:
             self._settled = True
-            self.state.finish(self.process.returncode, self.process.log_tail(6).replace("\n", " | "))
+            code = self.process.returncode
+            if self.process.stop_requested_at is not None and code not in (0, 2):
+                code = 130  # stopped by a signal (a worker, not the backend, dies of it): a cancel
+            self.state.finish(code, self.process.log_tail(6).replace("\n", " | "))
             self.on_finish(context)
+            _ended(context, self)
         return False
 
     def on_events(self, context, events: list[dict]) -> None:
@@ -66,6 +80,101 @@ class Job:
         """The headless path: drive :meth:`step` until the process ends."""
         while self.step(context):
             time.sleep(interval)
+
+
+WORKER = interpreter.PACKAGE_DIR / "addon" / "worker.py"
+
+
+def worker_argv(args: list[str]) -> list[str]:
+    """The command line of ``addon/worker.py``: a background Blender (this Blender's own
+    program), or this interpreter where Blender is the bpy module (it has no program)."""
+    binary = bpy.app.binary_path
+    if binary and Path(binary).is_file() and Path(sys.executable).resolve() != Path(binary).resolve():
+        return [binary, "--background", "--python-exit-code", "1", "--python", str(WORKER), "--", *args]
+    return [sys.executable, str(WORKER), *args]
+
+
+class WorkerJob(Job):
+    """``addon/worker.py`` in a child Blender: Cycles renders and bakes that would
+    otherwise hold Blender's UI. ``folder`` is the worker's scratch folder (its input
+    .blend and its output); it goes once the job has ended and :meth:`cleanup` is called
+    (the operator moves the result out first), at once when the job did not succeed."""
+
+    def __init__(self, args: list[str], kind: str, folder: Path):
+        self.folder = Path(folder)
+        super().__init__(sys.executable, [], None, kind=kind, argv=worker_argv(args))
+
+    def on_finish(self, context) -> None:
+        if self.state.status == "cancelled":
+            self.state.message = "nothing was changed"
+        if self.state.status != "done":
+            self.cleanup()
+
+    def cleanup(self) -> None:
+        shutil.rmtree(self.folder, ignore_errors=True)
+
+
+def _ended(context, job) -> None:
+    for listener in LISTENERS:
+        listener(context, job)
+
+
+class TaskJob:
+    """Work in Blender's own process, cut into chunks: ``task`` is a generator that yields
+    a progress event (``{"fraction": ..., "stage": ...}``) after each chunk and returns the
+    result. :meth:`step` runs one chunk; a stop closes the generator at its next yield (its
+    ``finally`` clauses undo what it had begun), so a cancelled task leaves nothing behind.
+    An :class:`AddonInputError` it raises fails the job with that one line."""
+
+    def __init__(self, task: Iterator[dict], kind: str):
+        self.kind = kind
+        self.state = RunState()
+        self.task = task
+        self.result = None
+        self.error: AddonInputError | None = None
+        self._finished = self._stop = False
+        ACTIVE[kind] = self
+
+    @property
+    def running(self) -> bool:
+        return not self._finished
+
+    def stop(self) -> None:
+        self._stop = True
+        self.state.stopping()
+
+    def step(self, context) -> bool:
+        """Run one chunk; False once the task has ended (done, failed or cancelled)."""
+        if self._finished:
+            return False
+        if self._stop:
+            self.task.close()
+            self.state.update({"event": "cancelled"})
+            self.state.message = "nothing was changed"
+            return self._end(context, 130)
+        try:
+            event = next(self.task)
+        except StopIteration as done:
+            self.result = done.value
+            self.state.update({"event": "done"})
+            return self._end(context, 0)
+        except AddonInputError as err:
+            self.error = err
+            self.state.update({"event": "error", "message": str(err)})
+            return self._end(context, 2)
+        self.state.update({"event": "progress", **event})
+        return True
+
+    def _end(self, context, code: int) -> bool:
+        self._finished = True
+        self.state.finish(code)
+        _ended(context, self)
+        return False
+
+    def run_blocking(self, context, interval: float = 0.0) -> None:
+        while self.step(context):
+            if interval:
+                time.sleep(interval)
 
 
 class ReconstructJob(Job):
@@ -139,9 +248,11 @@ def tag_redraw(context) -> None:
 
 def _drain() -> float | None:
     """Timer: keep reading stopped jobs' pipes until their processes exit."""
-    running = [job for job in ACTIVE.values() if job.running]
+    running = [job for job in ACTIVE.values() if job.running and isinstance(job, Job)]
     for job in running:
         job.process.poll()
+        if isinstance(job, WorkerJob) and job.process.finished:
+            job.cleanup()  # nobody takes its result any more
     return 0.2 if running else None
 
 
@@ -155,9 +266,13 @@ def stop_on_load(*_args) -> None:
         stop_unattended(job)
 
 
-def stop_unattended(job: Job) -> None:
-    """Stop a job nobody steps any more; a timer reads its pipes until the process exits."""
+def stop_unattended(job) -> None:
+    """Stop a job nobody steps any more; a timer reads its pipes until the process exits (a
+    task's generator is closed at once: its clean-up runs now)."""
     job.stop()
+    if isinstance(job, TaskJob):
+        job.step(bpy.context)
+        return
     if not bpy.app.timers.is_registered(_drain):
         bpy.app.timers.register(_drain, first_interval=0.2)
 
@@ -173,6 +288,8 @@ def unregister() -> None:
     if bpy.app.timers.is_registered(_drain):
         bpy.app.timers.unregister(_drain)
     for job in ACTIVE.values():
-        if job.running:
+        if job.running and isinstance(job, Job):
             job.process.kill()
+        elif job.running:
+            job.task.close()
     ACTIVE.clear()

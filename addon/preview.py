@@ -29,6 +29,7 @@ from .images import read_rgba, to_display
 from .scene_cameras import camera_object, configure_render
 
 IMAGE_NAME = "SfT Relit Preview"
+SCENE_NAME = ".sft_preview"  # the temporary scene a preview renders
 ESTIMATED_MAP = "environment.exr"  # RUN/environment.exr: --lighting estimate and rig (docs/protocol.md)
 SETTING_MODELS = {"ESTIMATE": ("estimate", "world"), "RIG": ("estimate", "camera"), "FLASH": ("flash", "world"),
                   "CAPTURED": ("captured", "world")}
@@ -208,10 +209,13 @@ def _point_light(light: dict) -> bpy.types.Object:
 
 
 def render(context, obj: bpy.types.Object, info: CaptureInfo, frame_index: int, lighting: PreviewLighting,
-           samples: int, percentage: int, device: str, path: Path) -> None:
-    """Render ``obj`` from frame ``frame_index``'s camera under ``lighting`` into the PNG ``path``."""
+           samples: int, percentage: int, device: str, path: Path, blend: Path | None = None) -> str:
+    """Render ``obj`` from frame ``frame_index``'s camera under ``lighting`` into the PNG ``path``;
+    with ``blend``, write that render's scene (named :data:`SCENE_NAME`) to the .blend file
+    instead, for a worker to render (``addon/worker.py render BLEND SCENE``). Returns the
+    scene's name."""
     frame = info.frames[frame_index]
-    scene = bpy.data.scenes.new(".sft_preview")
+    scene = bpy.data.scenes.new(SCENE_NAME)
     temporary = []
     try:
         scene.render.engine = "CYCLES"
@@ -246,7 +250,11 @@ def render(context, obj: bpy.types.Object, info: CaptureInfo, frame_index: int, 
         for light in lights:
             temporary.append(_point_light(light))
             scene.collection.objects.link(temporary[-1])
-        bpy.ops.render.render(write_still=True, scene=scene.name)
+        if blend is None:
+            bpy.ops.render.render(write_still=True, scene=scene.name)
+        else:
+            bpy.data.libraries.write(str(blend), {scene}, path_remap="ABSOLUTE", fake_user=True)
+        return scene.name
     finally:
         world_block = scene.world
         bpy.data.scenes.remove(scene)

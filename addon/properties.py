@@ -3,6 +3,7 @@
 import bpy
 from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, PointerProperty, StringProperty
 
+from . import capture_state
 from .io.preset_file import PRESETS
 
 QUALITY = (("auto", "Fit Budget", "The most accurate preset whose calibrated time fits the time budget, or the "
@@ -48,6 +49,12 @@ def _plan_stale(self, _context) -> None:
         self.plan_text = ""
 
 
+def _folder_changed(self, context) -> None:
+    """The capture folder changed: the Plan line goes and the panels' view of the folder is read again."""
+    _plan_stale(self, context)
+    capture_state.on_setting_changed(self, context)
+
+
 DEVICES = (
     ("AUTO", "Auto", "GPU when Cycles has one configured, else CPU"),
     ("CPU", "CPU", "Render on the CPU"),
@@ -59,10 +66,11 @@ class SFT_SceneSettings(bpy.types.PropertyGroup):
     capture_dir: StringProperty(
         name="Capture", subtype="DIR_PATH", default="",
         description="Capture folder: frames, masks and capture.json (set by the importers)",
-        update=_plan_stale)
+        update=_folder_changed)
     run_dir: StringProperty(
         name="Run", subtype="DIR_PATH", default="",
-        description="Run folder of the last reconstruction (snapshots, result, report)")
+        description="Run folder of the last reconstruction (snapshots, result, report)",
+        update=capture_state.on_setting_changed)
     env_path: StringProperty(
         name="Environment", subtype="FILE_PATH", default="",
         description="HDR environment map of the capture (set by Import Environment Map)", update=_plan_stale)

@@ -1,5 +1,10 @@
 """Video frames through Blender's own movie loading: a temporary scene whose sequencer
-holds the movie renders the chosen frames to PNG, colours unchanged (Standard view)."""
+holds the movie renders the chosen frames to PNG, colours unchanged (Standard view).
+Blender's movie reader applies the video's display rotation (a phone's portrait video is
+stored landscape with a rotation tag), so the frames come out upright.
+
+Decoding happens in Blender's process (the sequencer is bpy data) but one frame at a time:
+:func:`frame_steps` yields after each frame, so a modal timer interleaves it with the UI."""
 
 from pathlib import Path
 
@@ -32,10 +37,24 @@ def video_info(path: str | Path) -> tuple[int, int, int, float]:
 def render_frames(path: str | Path, frames: list[int], out_dir: str | Path, progress=None) -> list[Path]:
     """Write the 0-based ``frames`` of a video as PNGs in ``out_dir``; returns their paths.
     ``progress(done, total)`` is called after each frame."""
+    steps = frame_steps(path, frames, out_dir)
+    while True:
+        try:
+            done, total = next(steps)
+        except StopIteration as end:
+            return end.value
+        if progress is not None:
+            progress(done, total)
+
+
+def frame_steps(path: str | Path, frames: list[int], out_dir: str | Path):
+    """:func:`render_frames` as a generator: yields ``(done, total)`` after each frame and
+    returns the paths; closing it early removes the temporary scene."""
     total, width, height, fps = video_info(path)
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     scene = bpy.data.scenes.new(".sft_video")
+    had_result = {image.name for image in bpy.data.images if image.type == "RENDER_RESULT"}
     try:
         editor = scene.sequence_editor_create()
         strips = editor.strips if hasattr(editor, "strips") else editor.sequences  # 4.4 renamed it
@@ -59,8 +78,9 @@ def render_frames(path: str | Path, frames: list[int], out_dir: str | Path, prog
             bpy.ops.render.render(animation=True, scene=scene.name)
             require(target.is_file(), path, f"frame {index} could not be decoded", "re-encode the video")
             written.append(target)
-            if progress is not None:
-                progress(len(written), len(frames))
+            yield len(written), len(frames)
         return written
     finally:
         bpy.data.scenes.remove(scene)
+        for image in [i for i in bpy.data.images if i.type == "RENDER_RESULT" and i.name not in had_result]:
+            bpy.data.images.remove(image)  # the sequencer's renders leave the scene's images as they were

@@ -5,7 +5,7 @@ import bpy
 from bpy.props import BoolProperty, StringProperty
 from bpy_extras.io_utils import ImportHelper
 
-from .. import jobs, world
+from .. import capture_state, jobs, world
 from ..io import capture_file, interpreter, progress
 from ..io import frames as fr
 from ..io.errors import AddonInputError, require
@@ -115,12 +115,11 @@ class SFT_OT_solve_cameras(JobModal, bpy.types.Operator):
     def poll(cls, context):
         if not idle(cls, cls.job_kind, "reconstruct", "plan"):  # they read the capture this rewrites
             return False
-        sft = context.scene.sft
-        capture = abspath(sft.capture_dir) if sft.capture_dir else None
-        if capture is None or not (capture / fr.MANIFEST).is_file():
+        facts = capture_state.facts(context.scene)  # poll runs on every redraw: no file reads
+        if not facts.has_manifest:
             cls.poll_message_set("import a video first (Import Video)")
             return False
-        if not (capture / fr.MASKS).is_dir():
+        if not facts.has_masks_dir:
             cls.poll_message_set("import the object masks first (Import Masks)")
             return False
         return has_backend(cls, context)

@@ -25,7 +25,11 @@ def capture_dir(context, override: str = "", must_exist: bool = True) -> Path:
 RUNNING = {"install": "the backend is being installed", "import": "cameras are being imported",
            "solve": "the cameras are being solved: wait for it or cancel it",
            "reconstruct": "a reconstruction is running: wait for it or cancel it",
-           "plan": "Plan is measuring the capture's step costs and accuracy: wait for it or cancel it"}
+           "plan": "Plan is measuring the capture's step costs and accuracy: wait for it or cancel it",
+           "video": "a video is being imported: wait for it or cancel it",
+           "masks": "masks are being imported: wait for it or cancel it",
+           "preview": "a relit preview is rendering: wait for it or cancel it",
+           "export": "the glTF export is baking: wait for it or cancel it"}
 
 
 def idle(cls, *kinds: str) -> bool:
@@ -67,33 +71,3 @@ def poll_reconstruction(cls, context, needs_capture: bool = False) -> bool:
 def fail(operator, err) -> set[str]:
     operator.report({"ERROR"}, str(err))
     return {"CANCELLED"}
-
-
-class Busy:
-    """Progress of an operator that works in Blender's own process: the cursor's progress
-    indicator and a status-bar line, cleared however the work ends.
-
-    ``with Busy(context, "Import Video") as busy: ... busy(done, total, "frame 3")``"""
-
-    def __init__(self, context, label: str):
-        self.wm, self.label = context.window_manager, label
-        self.workspace = getattr(context, "workspace", None)
-
-    def __enter__(self):
-        self.wm.progress_begin(0, 1000)
-        self._text(f"{self.label}...")
-        return self
-
-    def __call__(self, done: float, total: float = 1.0, note: str = "") -> None:
-        fraction = min(1.0, done / total) if total else 0.0
-        self.wm.progress_update(int(1000 * fraction))
-        self._text(f"{self.label}: {fraction:.0%}" + (f"  {note}" if note else ""))
-
-    def _text(self, text: str | None) -> None:
-        if self.workspace is not None:
-            self.workspace.status_text_set(text)
-
-    def __exit__(self, *exc):
-        self.wm.progress_end()
-        self._text(None)
-        return False

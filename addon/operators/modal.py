@@ -1,8 +1,10 @@
 """The modal pattern shared by operators that run a backend job.
 
-``invoke`` starts the job and reads its events on a window timer without blocking the UI
-(Esc asks for a clean stop); ``execute`` (scripts, background mode, where timers never
-fire) drives the same :meth:`jobs.Job.step` in a loop until the process ends."""
+``invoke`` starts the job and reads its events on a window timer without blocking the UI;
+``execute`` (scripts, background mode, where timers never fire) drives the same
+:meth:`jobs.Job.step` in a loop until the job ends. A job stops on its panel's Cancel
+button, or on Esc pressed while the mouse is over a 3D view's sidebar (where that button
+is): an Esc meant for another editor (leaving a modal tool, closing a menu) passes through."""
 
 import bpy
 
@@ -20,7 +22,7 @@ class JobModal:
         """The status bar's line while the job runs."""
         state = job.state
         return (f"{self.bl_label}: {state.headline()}  {state.fraction:.0%}  {state.eta_text()}"
-                "  (Esc: cancel)")
+                "  (Cancel in the sidebar, or Esc over it)")
 
     def _status(self, context, text: str | None) -> None:
         workspace = getattr(context, "workspace", None)
@@ -71,7 +73,7 @@ class JobModal:
         return {"RUNNING_MODAL"}
 
     def modal(self, context, event):
-        if event.type == "ESC" and event.value == "PRESS":
+        if event.type == "ESC" and event.value == "PRESS" and over_sidebar(context, event):
             self._job.stop()
             jobs.tag_redraw(context)
             return {"RUNNING_MODAL"}
@@ -93,6 +95,18 @@ class JobModal:
         self._status(context, None)
 
 
+def over_sidebar(context, event) -> bool:
+    """Whether the mouse is over the sidebar (UI region) of a 3D view in the event's window."""
+    window = getattr(context, "window", None)
+    screen = getattr(window, "screen", None)
+    if screen is None:
+        return False
+    x, y = event.mouse_x, event.mouse_y
+    return any(region.type == "UI" and region.x <= x < region.x + region.width
+               and region.y <= y < region.y + region.height
+               for area in screen.areas if area.type == "VIEW_3D" for region in area.regions)
+
+
 class CancelJob:
     """A Cancel button for the job of kind ``job_kind``: a clean stop (the backend keeps what
     it had finished); greyed out while no such job runs."""
@@ -108,3 +122,28 @@ class CancelJob:
         jobs.ACTIVE[self.job_kind].stop()
         jobs.tag_redraw(context)
         return {"FINISHED"}
+
+
+class SFT_OT_cancel_job(bpy.types.Operator):
+    """Stop the running job of this kind (nothing it had not finished reaches the scene)"""
+
+    bl_idname = "sft.cancel_job"
+    bl_label = "Cancel"
+
+    kind: bpy.props.StringProperty(name="Job", default="", options={"SKIP_SAVE"})
+
+    @classmethod
+    def poll(cls, context):
+        return any(job.running for job in jobs.ACTIVE.values())
+
+    def execute(self, context):
+        job = jobs.ACTIVE.get(self.kind)
+        if job is None or not job.running:
+            self.report({"ERROR"}, f"no '{self.kind}' job is running")
+            return {"CANCELLED"}
+        job.stop()
+        jobs.tag_redraw(context)
+        return {"FINISHED"}
+
+
+CLASSES = (SFT_OT_cancel_job,)

@@ -10,7 +10,7 @@ from pathlib import Path
 import bpy
 from bpy.props import StringProperty
 
-from .. import jobs, scene_mesh, world
+from .. import capture_state, jobs, scene_mesh, world
 from ..io import interpreter, progress
 from ..io.errors import AddonInputError, require
 from ..preferences import backend_python
@@ -104,7 +104,7 @@ def _poll_reconstruct(cls, context) -> bool:
     if not sft.capture_dir:
         cls.poll_message_set("import a video and solve its cameras, or import cameras, first")
         return False
-    if not (abspath(sft.capture_dir) / "capture.json").is_file():
+    if not capture_state.facts(context.scene).has_capture_json:  # poll runs on every redraw: no file reads
         cls.poll_message_set("the capture has no cameras yet: Solve Cameras or Import Cameras")
         return False
     return has_backend(cls, context)
@@ -159,7 +159,7 @@ def _load_estimated_lighting(context, run_dir) -> str:
 
 class SFT_OT_reconstruct(_ReconstructModal, bpy.types.Operator):
     """Reconstruct shape and material in a background process; the mesh updates live.
-    Esc or Cancel stops it cleanly and keeps the last snapshot"""
+    Cancel (or Esc over the sidebar) stops it cleanly and keeps the last snapshot"""
 
     bl_idname = "sft.reconstruct"
     bl_label = "Reconstruct"

@@ -1,13 +1,16 @@
-"""Panels Capture / Cameras / Reconstruct / Preview in the sidebar tab "Shape from Tracing"."""
+"""Panels Capture / Cameras / Reconstruct / Preview in the sidebar tab "Shape from Tracing".
 
-import json
+Drawing reads no file: what the panels show of the capture and run folders comes from
+:mod:`capture_state`'s cache, and the jobs' progress from their in-memory state. Each
+panel's layout is a column of blocks (a job's progress, the settings, the actions), so
+further settings slot in as blocks of their own."""
+
 from pathlib import Path
 
 import bpy
 
-from .. import accuracy_curve, jobs, scene_cameras, scene_mesh
-from ..io import frames, preset_file, progress
-from ..operators import reconstruct
+from .. import accuracy_curve, capture_state, jobs, scene_cameras, scene_mesh
+from ..io import preset_file, progress
 
 CATEGORY = "Shape from Tracing"
 
@@ -18,32 +21,9 @@ class _Panel:
     bl_category = CATEGORY
 
 
-_LIGHTS: dict[str, tuple[int, int]] = {}  # capture.json path -> (mtime_ns, point lights)
-
-
-def capture_lights(capture_dir: str) -> int:
-    """How many point lights the scene's capture.json gives its frames (read again only when
-    the file changes: panels draw often)."""
-    if not capture_dir:
-        return 0
-    path = Path(bpy.path.abspath(capture_dir)) / "capture.json"
-    try:
-        stamp = path.stat().st_mtime_ns
-    except OSError:
-        return 0
-    cached = _LIGHTS.get(str(path))
-    if cached is None or cached[0] != stamp:
-        try:
-            frames = json.loads(path.read_text()).get("frames") or []
-            count = sum(len(f.get("lights") or []) for f in frames if isinstance(f, dict))
-        except (OSError, ValueError, AttributeError, TypeError):
-            count = 0
-        cached = _LIGHTS[str(path)] = (stamp, count)
-    return cached[1]
-
-
 def _draw_job(layout, job: jobs.Job | None, cancel: str | None = None) -> bool:
-    """Progress bar, stage, loss and ETA of a job; True while it runs."""
+    """Progress bar, stage, loss and ETA of a job; True while it runs. ``cancel``: the
+    operator of its Cancel button (default: ``sft.cancel_job`` for the job's kind)."""
     if job is None:
         return False
     state = job.state
@@ -65,6 +45,8 @@ def _draw_job(layout, job: jobs.Job | None, cancel: str | None = None) -> bool:
             col.label(text="Stopping after the current step...", icon="PAUSE")
         elif cancel:
             col.operator(cancel, icon="CANCEL")
+        else:
+            col.operator("sft.cancel_job", icon="CANCEL").kind = job.kind
         return True
     icon = {"done": "CHECKMARK", "cancelled": "CANCEL"}.get(state.status, "ERROR")
     col.label(text=state.headline(), icon=icon)
@@ -91,15 +73,15 @@ class SFT_PT_capture(_Panel, bpy.types.Panel):
         sft = context.scene.sft
         layout = self.layout
         layout.prop(sft, "capture_dir")
+        running = any(_draw_job(layout, jobs.ACTIVE.get(kind)) for kind in ("video", "masks"))
         col = layout.column(align=True)
+        col.enabled = not running
         col.operator("sft.import_video", icon="FILE_MOVIE")
         col.operator("sft.import_masks", icon="MOD_MASK")
         col.operator("sft.import_environment", icon="WORLD")
-        capture = Path(bpy.path.abspath(sft.capture_dir)) if sft.capture_dir else None
-        if capture and (capture / frames.MANIFEST).is_file():
-            n = len(list((capture / frames.IMAGES).glob("*.png")))
-            m = len(list((capture / frames.MASKS).glob("*.png"))) if (capture / frames.MASKS).is_dir() else 0
-            layout.label(text=f"{n} frames, {m} masks", icon="IMAGE_DATA")
+        facts = capture_state.facts(context.scene)
+        if facts.has_manifest:
+            layout.label(text=f"{facts.frames} frames, {facts.masks} masks", icon="IMAGE_DATA")
         if sft.env_path:
             layout.label(text=f"{Path(sft.env_path).name}  x{sft.env_strength:g}  {sft.env_rotation:g}°",
                          icon="WORLD_DATA")
@@ -133,7 +115,8 @@ class SFT_PT_reconstruct(_Panel, bpy.types.Panel):
         col = layout.column()
         col.enabled = not running
         col.prop(sft, "preset")
-        calibration, measured_on = preset_file.kind_calibration(preset_file.calibration(),
+        facts = capture_state.facts(context.scene)
+        calibration, measured_on = preset_file.kind_calibration(facts.calibration,
                                                                 preset_file.kind_for(sft.lighting, sft.env_path))
         box = col.box().column(align=True)
         for key, label, _ in preset_file.PRESETS:
@@ -171,22 +154,22 @@ class SFT_PT_reconstruct(_Panel, bpy.types.Panel):
         elif sft.env_path:
             col.label(text=f"Lighting: {Path(sft.env_path).name} x{sft.env_strength:g} {sft.env_rotation:g}°",
                       icon="WORLD_DATA")
-        elif capture_lights(sft.capture_dir):
-            col.label(text=f"Lighting: the capture's point lights ({capture_lights(sft.capture_dir)})",
-                      icon="LIGHT_POINT")
+        elif facts.point_lights:
+            col.label(text=f"Lighting: the capture's point lights ({facts.point_lights})", icon="LIGHT_POINT")
         else:
             col.label(text="No lighting: Import Environment Map", icon="ERROR")
         if not running:
             row = layout.row(align=True)
             row.operator("sft.reconstruct", icon="PLAY")
-            if reconstruct.resumable(sft.run_dir):
+            if facts.resumable:
                 row.operator("sft.reconstruct_resume", icon="FILE_REFRESH")
         _draw_job(layout, job, cancel="sft.reconstruct_cancel")
         _draw_accuracy(layout, job)
         obj = bpy.data.objects.get(scene_mesh.OBJECT_NAME)
         if obj is not None and obj.type == "MESH" and obj.data.polygons:
             layout.label(text=f"{len(obj.data.polygons)} faces", icon="MESH_DATA")
-            layout.operator("sft.export_gltf", icon="EXPORT")
+            if not _draw_job(layout, jobs.ACTIVE.get("export")):
+                layout.operator("sft.export_gltf", icon="EXPORT")
 
 
 class SFT_PT_reconstruct_advanced(_Panel, bpy.types.Panel):
@@ -216,7 +199,8 @@ class SFT_PT_preview(_Panel, bpy.types.Panel):
         row.prop(sft, "preview_samples")
         row.prop(sft, "preview_percentage")
         layout.prop(sft, "device")
-        layout.operator("sft.relit_preview", icon="RENDER_STILL")
+        if not _draw_job(layout, jobs.ACTIVE.get("preview")):
+            layout.operator("sft.relit_preview", icon="RENDER_STILL")
 
 
 CLASSES = (SFT_PT_capture, SFT_PT_cameras, SFT_PT_reconstruct, SFT_PT_reconstruct_advanced, SFT_PT_preview)

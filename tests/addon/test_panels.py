@@ -1,10 +1,14 @@
 """The sidebar panels' draw code, run against a layout that records what it draws and
 checks every property, operator and icon name against Blender's RNA (panels cannot be
-drawn in background mode)."""
+drawn in background mode); drawing reads no file."""
 
 from __future__ import annotations
 
+import builtins
+import contextlib
+import io
 import json
+import os
 import sys
 import time
 import types
@@ -38,6 +42,7 @@ class RecordingLayout:
         assert hasattr(getattr(bpy.ops, module), name), idname
         assert icon in ICONS, icon
         self.log.append(("operator", idname, self.enabled))
+        return types.SimpleNamespace()  # the operator's properties, as Blender returns them
 
     def label(self, text="", icon="NONE", **kwargs):
         assert icon in ICONS, icon
@@ -103,14 +108,15 @@ def test_panels_draw_in_an_empty_scene(context):
     assert not any(e[:2] == ("operator", "sft.reconstruct_resume") for e in log["SFT_PT_reconstruct"])
 
 
-def test_reconstruct_panel_offers_resume_for_an_unfinished_run(context, tmp_path):
+def test_reconstruct_panel_offers_resume_for_an_unfinished_run(context, addon, tmp_path):
     (tmp_path / "state").mkdir()
     (tmp_path / "state" / "state.json").write_text("{}")
     (tmp_path / "command.json").write_text('{"argv": ["reconstruct", "c", "--out", "r"]}')
-    context.scene.sft.run_dir = str(tmp_path)
+    context.scene.sft.run_dir = str(tmp_path)  # its update callback reads the folder
     try:
         assert ("operator", "sft.reconstruct_resume", True) in draw("SFT_PT_reconstruct", context)
         (tmp_path / "report.json").write_text("{}")  # finished: nothing to resume
+        addon.capture_state.refresh(context.scene)  # what the run's end (a job event) does
         assert not any(e[:2] == ("operator", "sft.reconstruct_resume") for e in draw("SFT_PT_reconstruct", context))
     finally:
         context.scene.sft.run_dir = ""
@@ -149,3 +155,67 @@ def test_reconstruct_panel_shows_progress_and_cancel(context, addon, tmp_path):
             job.process.kill()
     with pytest.raises(RuntimeError):  # nothing left to cancel
         bpy.ops.sft.reconstruct_cancel()
+
+
+@contextlib.contextmanager
+def file_access_counted():
+    """Count the calls that open, list or stat a file (observing them: each still runs)."""
+    calls = []
+    patched = [(builtins, "open"), (io, "open"), (os, "open"), (os, "scandir"), (os, "listdir"), (os, "stat")]
+    originals = [getattr(module, name) for module, name in patched]
+
+    def counting(name, original):
+        def wrapper(*args, **kwargs):
+            calls.append((name, args[0] if args else None))
+            return original(*args, **kwargs)
+        return wrapper
+
+    for (module, name), original in zip(patched, originals):
+        setattr(module, name, counting(name, original))
+    try:
+        yield calls
+    finally:
+        for (module, name), original in zip(patched, originals):
+            setattr(module, name, original)
+
+
+def test_drawing_the_panels_reads_no_file(context, addon, tmp_path):
+    """A capture with frames, masks, cameras with point lights, a resumable run and a job
+    running: what the panels show comes from the cache and the jobs' state, not the disk;
+    a change on disk shows after a refresh (a job's end, a folder setting, the UI's timer)."""
+    from .test_relit_lighting import _capture
+
+    capture = _capture(tmp_path / "capture", lights=True)
+    (capture / "frames.json").write_text('{"frames": []}')
+    for folder in ("images", "masks"):
+        (capture / folder).mkdir(exist_ok=True)
+        (capture / folder / "0000.png").write_bytes(b"")
+    run = tmp_path / "run"
+    (run / "state").mkdir(parents=True)
+    (run / "state" / "state.json").write_text("{}")
+    (run / "command.json").write_text('{"argv": ["reconstruct", "c", "--out", "r"]}')
+    sft = context.scene.sft
+    sft.capture_dir, sft.run_dir, sft.lighting = str(capture), str(run), "CAPTURED"
+    job = addon.jobs.ReconstructJob(sys.executable, ["reconstruct", "c", "--out", str(tmp_path / "r2"), "--steps",
+                                                    "400", "--delay", "0.05"], tmp_path / "r2", "Reconstruction",
+                                    root=SCRIPTED_BACKEND)
+    try:
+        while job.state.iteration < 2:
+            job.step(context)
+            time.sleep(0.02)
+        names = ("SFT_PT_capture", "SFT_PT_cameras", "SFT_PT_reconstruct", "SFT_PT_reconstruct_advanced",
+                 "SFT_PT_preview")
+        with file_access_counted() as calls:
+            logs = {name: draw(name, context) for name in names}
+        assert calls == [], calls
+        assert ("label", "1 frames, 1 masks") in logs["SFT_PT_capture"]
+        assert ("label", "Lighting: the capture's point lights (1)") in logs["SFT_PT_reconstruct"]
+        assert any(e[0] == "progress" for e in logs["SFT_PT_reconstruct"])
+        (capture / "masks" / "0001.png").write_bytes(b"")
+        assert ("label", "1 frames, 1 masks") in draw("SFT_PT_capture", context)  # not read while drawing
+        addon.capture_state.refresh(context.scene)
+        assert ("label", "1 frames, 2 masks") in draw("SFT_PT_capture", context)
+    finally:
+        job.process.kill()
+        job.run_blocking(context, 0.02)
+        addon.jobs.ACTIVE.pop("reconstruct", None)

@@ -101,22 +101,26 @@ def test_import_cameras_other_layouts_through_backend(context, env_capture, tmp_
         np.testing.assert_allclose(_matrix(obj), frame["camera"]["camera_to_world"], atol=1e-5)
 
 
-def test_solve_cameras_is_greyed_out_until_frames_and_masks_exist(context, tmp_path):
-    """poll() says what is missing (the button's tooltip); start() checks the files."""
+def test_solve_cameras_is_greyed_out_until_frames_and_masks_exist(context, addon, tmp_path):
+    """poll() says what is missing (the button's tooltip); start() checks the files. poll()
+    reads the cached view of the folder, refreshed here as the importers refresh it."""
     expect_error(bpy.ops.sft.solve_cameras, "poll()", "import a video first (Import Video)")
     context.scene.sft.capture_dir = str(tmp_path)
     expect_error(bpy.ops.sft.solve_cameras, "import a video first (Import Video)")
     (tmp_path / "frames.json").write_text(json.dumps({"video": "v.mp4", "frames": [{"name": "0000"}]}))
+    addon.capture_state.refresh(context.scene)
     expect_error(bpy.ops.sft.solve_cameras, "import the object masks first (Import Masks)")
     (tmp_path / "masks").mkdir()
+    addon.capture_state.refresh(context.scene)
     expect_error(bpy.ops.sft.solve_cameras, "images: no frames", "import the video again")
 
 
-def test_reconstruct_refuses_bad_input(context, tmp_path):
+def test_reconstruct_refuses_bad_input(context, addon, tmp_path):
     expect_error(bpy.ops.sft.reconstruct, "poll()", "import a video and solve its cameras, or import cameras")
     context.scene.sft.capture_dir = str(tmp_path)
     expect_error(bpy.ops.sft.reconstruct, "the capture has no cameras yet: Solve Cameras or Import Cameras")
     (tmp_path / "capture.json").write_text("{}")
+    addon.capture_state.refresh(context.scene)  # as Import Cameras does once it wrote capture.json
     expect_error(bpy.ops.sft.reconstruct, "capture folder not found", capture_dir=str(tmp_path / "none"))
     (tmp_path / "run").mkdir()
     (tmp_path / "run" / "old.txt").write_text("x")
