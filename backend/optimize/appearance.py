@@ -14,7 +14,7 @@ from ..lighting.estimated_map import EstimatedEnvironment
 from ..lighting.flash import Flash
 from ..lighting.modes import ESTIMATED, MAP_FRAME
 from ..material import factory
-from ..material.driver import MaterialDriver
+from ..material.driver import LOBE_GAIN, MaterialDriver
 from ..material.export import write_glb
 from ..material.stages import evaluate_loss
 from ..render import effects
@@ -61,6 +61,7 @@ class Appearance:
         # the lighting fitted with the material: --lighting estimate's map, --lighting flash's flash
         self.lighting: EstimatedEnvironment | Flash | None = None
         self.relight = Relight()
+        self.lobe_trials: list[dict] = []  # the specular stage's lobe trials under a diffuse-only decision
 
     # -- lighting ----------------------------------------------------------------------------------
     def start_lighting(self, folder, resume: bool = False) -> None:
@@ -155,9 +156,10 @@ class Appearance:
         if self.driver is None or self.driver.done:
             return None
         if self.driver.stage == "specular" and self.decision is not None and not self.decision.specular:
-            # diffuse-only, re-checked on entering the stage: no specular lobe to texture
-            self.driver.schedule.stage = "done"
-            return None
+            # diffuse-only, re-checked on entering the stage: the lobe is tried, and kept by the loss
+            if not self.try_lobe(mesh, material, views, level):
+                self.driver.schedule.stage = "done"
+                return None
         start = time.perf_counter()
         stage_before = self.driver.stage
         self.emit("stage", stage=f"material:{stage_before}", level=level, faces=mesh.n_faces)
@@ -177,6 +179,35 @@ class Appearance:
         if self.driver.stage != stage_before and self.driver.stage == "specular":
             self.decide(mesh, material, views, reason="materials became spatially varying")
         return {"stage": stage_before, "loss": result.loss, "seconds": round(time.perf_counter() - start, 3)}
+
+    def try_lobe(self, mesh, material, views, level: int) -> bool:
+        """The specular stage is due under a diffuse-only decision: fit the lobe's constants and
+        keep them when they lower the full-view loss (``MaterialDriver.try_lobe``); the decision
+        then turns the lobe on (an ``effects`` event). Whether the lobe was kept."""
+        if "specular" in self.overrides:  # --effects forced the lobe off
+            return False
+        start = time.perf_counter()
+        self.emit("stage", stage="material:lobe", level=level, faces=mesh.n_faces)
+        renderer = self._renderer(mesh, material, views, geometry=False)
+        trial = self.driver.try_lobe(renderer, [v.target for v in views], self._masks(views), material, self.emit)
+        seconds = time.perf_counter() - start
+        self.seconds += seconds
+        self.lobe_trials.append({"level": level, **{k: round(v, 8) if isinstance(v, float) else v
+                                                     for k, v in trial.items()}, "seconds": round(seconds, 3)})
+        if not trial["kept"]:
+            return False
+        self.decision.specular, self.specular_off = True, False
+        why = (f"the image test measured no highlights, but the lobe lowered the full-view loss by "
+               f"{100 * trial['gain']:.1f}% (>= {100 * LOBE_GAIN:g}%)")
+        self.decision.reasons["specular"] = f"{self.decision.reasons.get('specular', '')}; {why}".lstrip("; ")
+        record = {"reason": "specular stage: the lobe tried", "enabled": {
+                      "max_depth": self.decision.max_depth, "shadows": self.decision.shadows, "specular": True,
+                      "silhouettes": self.decision.silhouettes, "emitters": self.decision.emitters},
+                  "measured": {"lobe_trial": self.lobe_trials[-1]}, "why": self.decision.reasons,
+                  "forced": self.decision.forced, "seconds": round(seconds, 3)}
+        self.history.append(record)
+        self.emit("effects", **record)
+        return True
 
     def full_loss(self, mesh, material, views) -> float:
         """The material's loss over ``views`` as the schedule scores a cycle (``stages.evaluate_loss``)."""
@@ -268,7 +299,7 @@ class Appearance:
                "lighting": self.lighting_report()}
         if self.driver is not None:
             write_glb(folder / "result.glb", mesh, material)
-            out["material_schedule"] = self.driver.report()
+            out["material_schedule"] = dict(self.driver.report(), lobe_trials=self.lobe_trials)
         return out
 
     # -- effects -----------------------------------------------------------------------------------
