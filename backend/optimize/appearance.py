@@ -14,7 +14,7 @@ from ..lighting.estimated_map import EstimatedEnvironment
 from ..lighting.flash import Flash
 from ..lighting.modes import ESTIMATED, MAP_FRAME
 from ..material import factory
-from ..material.driver import LOBE_GAIN, MaterialDriver
+from ..material.driver import MaterialDriver
 from ..material.export import write_glb
 from ..material.stages import evaluate_loss
 from ..render import effects
@@ -155,11 +155,10 @@ class Appearance:
         """One stage of the material schedule on the current geometry."""
         if self.driver is None or self.driver.done:
             return None
-        if self.driver.stage == "specular" and self.decision is not None and not self.decision.specular:
-            # diffuse-only, re-checked on entering the stage: the lobe is tried, and kept by the loss
-            if not self.try_lobe(mesh, material, views, level):
-                self.driver.schedule.stage = "done"
-                return None
+        if (self.driver.stage == "specular" and self.decision is not None and not self.decision.specular
+                and ("specular" in self.overrides or not self.try_lobe(mesh, material, views, level))):
+            self.driver.schedule.stage = "done"  # diffuse-only (forced, or the lobe tried did not pay)
+            return None
         start = time.perf_counter()
         stage_before = self.driver.stage
         self.emit("stage", stage=f"material:{stage_before}", level=level, faces=mesh.n_faces)
@@ -181,33 +180,22 @@ class Appearance:
         return {"stage": stage_before, "loss": result.loss, "seconds": round(time.perf_counter() - start, 3)}
 
     def try_lobe(self, mesh, material, views, level: int) -> bool:
-        """The specular stage is due under a diffuse-only decision: fit the lobe's constants and
-        keep them when they lower the full-view loss (``MaterialDriver.try_lobe``); the decision
-        then turns the lobe on (an ``effects`` event). Whether the lobe was kept."""
-        if "specular" in self.overrides:  # --effects forced the lobe off
-            return False
+        """The lobe tried under a diffuse-only decision (``MaterialDriver.try_lobe``); kept, it is on."""
         start = time.perf_counter()
         self.emit("stage", stage="material:lobe", level=level, faces=mesh.n_faces)
-        renderer = self._renderer(mesh, material, views, geometry=False)
-        trial = self.driver.try_lobe(renderer, [v.target for v in views], self._masks(views), material, self.emit)
-        seconds = time.perf_counter() - start
-        self.seconds += seconds
-        self.lobe_trials.append({"level": level, **{k: round(v, 8) if isinstance(v, float) else v
-                                                     for k, v in trial.items()}, "seconds": round(seconds, 3)})
-        if not trial["kept"]:
-            return False
-        self.decision.specular, self.specular_off = True, False
-        why = (f"the image test measured no highlights, but the lobe lowered the full-view loss by "
-               f"{100 * trial['gain']:.1f}% (>= {100 * LOBE_GAIN:g}%)")
-        self.decision.reasons["specular"] = f"{self.decision.reasons.get('specular', '')}; {why}".lstrip("; ")
-        record = {"reason": "specular stage: the lobe tried", "enabled": {
-                      "max_depth": self.decision.max_depth, "shadows": self.decision.shadows, "specular": True,
-                      "silhouettes": self.decision.silhouettes, "emitters": self.decision.emitters},
-                  "measured": {"lobe_trial": self.lobe_trials[-1]}, "why": self.decision.reasons,
-                  "forced": self.decision.forced, "seconds": round(seconds, 3)}
-        self.history.append(record)
-        self.emit("effects", **record)
-        return True
+        trial = {"level": level, **self.driver.try_lobe(self._renderer(mesh, material, views, geometry=False), [
+            v.target for v in views], self._masks(views), material, self.emit)}
+        trial["seconds"] = round(time.perf_counter() - start, 3)
+        self.seconds += trial["seconds"]
+        self.lobe_trials.append(trial)
+        if trial["kept"]:
+            self.decision.specular, self.specular_off = True, False
+            self.decision.reasons["specular"] += f"; the lobe lowered the full-view loss by {100 * trial['gain']:.1f}%"
+            self.history.append({"reason": "specular stage: the lobe tried", "measured": {"lobe_trial": trial},
+                                 "enabled": {**self.history[-1]["enabled"], "specular": True},
+                                 "why": self.decision.reasons, "forced": {}, "seconds": trial["seconds"]})
+            self.emit("effects", **self.history[-1])
+        return trial["kept"]
 
     def full_loss(self, mesh, material, views) -> float:
         """The material's loss over ``views`` as the schedule scores a cycle (``stages.evaluate_loss``)."""
