@@ -8,7 +8,6 @@
     driver.finalise()                                        # geometry converged: last, longer stages
     driver.restart(material, 3)                              # ... from grey, constants first (a relight)
     driver.schedule.refine() / .skip_to()                      # the schedule's other moves
-    driver.try_lobe(renderer, images, masks, material)       # no highlights measured: the loss decides
     driver.settle(renderer, images, masks, material)         # the end: keep the specular texture?
     driver.state() / driver.restore(state, images, masks)   # the schedule's position, for --resume
 
@@ -27,13 +26,8 @@ from ..geometry.mesh import Mesh
 from .factory import create
 from .labels import FaceLabels, face_labels, load_material_labels
 from .model import MeshColorMaterial
-from .schedule import MaterialSchedule, restore_values, run_cycle, saved_values
-from .stages import FitResult, FitSettings, check_specular_texture, check_views, evaluate_loss, fit_lobe
-
-# the full-view loss a specular lobe must remove (relative) to stay against a diffuse-only
-# image test: well above what a lobe fitted to a diffuse object removes, well below what a
-# lobe removes where highlights are what the diffuse fit misses
-LOBE_GAIN = 0.02
+from .schedule import MaterialSchedule, run_cycle
+from .stages import FitResult, FitSettings, check_specular_texture, check_views, fit_lobe
 
 
 @dataclass
@@ -89,29 +83,6 @@ class MaterialDriver:
         result = fit_lobe(renderer, images, masks, material, self.settings, emit)
         self.results.append(result)
         return result
-
-    def try_lobe(self, renderer, images, masks, material: MeshColorMaterial, emit=None,
-                 min_gain: float = LOBE_GAIN) -> dict:
-        """The schedule reached its specular stage under a diffuse-only decision (the image test
-        measured no highlights): the full-view loss decides instead. The lobe restarts from
-        neutral values and its constants are fitted with the albedo held (``fit_lobe``); it stays
-        when the loss falls by at least ``min_gain`` (relative), else the diffuse-only material
-        comes back. The image test compares targets with diffuse shading under the lighting
-        fitted so far, and a fitted lighting has taken up part of the highlights by then.
-        Returns {"kept", "loss_before", "loss_after", "gain"}."""
-        before = evaluate_loss(renderer, images, masks, material)
-        saved = saved_values(material)
-        material.restart_specular()
-        result = fit_lobe(renderer, images, masks, material, self.settings, emit)
-        after = evaluate_loss(renderer, images, masks, material)
-        gain = 1.0 - after / before if before > 0 else 0.0
-        kept = bool(gain >= min_gain)
-        if not kept:
-            restore_values(material, saved, renderer)
-            material.disable("specular")
-            result.reverted = True
-        self.results.append(result)
-        return {"kept": kept, "loss_before": before, "loss_after": after, "gain": gain}
 
     def finalise(self, last: str = "specular", iterations_scale: int = 4) -> None:
         """Geometry has converged: longer textured stages to the end (MaterialSchedule.finalise)."""

@@ -40,7 +40,7 @@ class Appearance:
       estimate, which effects matter and picks the integrator, depth, shadow gradients and the
       specular lobe; re-checked after every re-mesh and when materials become spatially varying,
       and after every geometry level while the lobe is off (turned on, it restarts from neutral
-      values and its constants are fitted).
+      values and its constants are fitted; once on, a later measurement does not turn it off).
       ``all`` or a list forces them. Each decision is an ``effects`` event.
     - A fitted lighting (``--lighting estimate``/``flash``) gets constant-material cycles on the
       initial mesh before any geometry step (``light_first``), and restarts with the material
@@ -61,7 +61,6 @@ class Appearance:
         # the lighting fitted with the material: --lighting estimate's map, --lighting flash's flash
         self.lighting: EstimatedEnvironment | Flash | None = None
         self.relight = Relight()
-        self.lobe_trials: list[dict] = []  # the specular stage's lobe trials under a diffuse-only decision
 
     # -- lighting ----------------------------------------------------------------------------------
     def start_lighting(self, folder, resume: bool = False) -> None:
@@ -155,9 +154,9 @@ class Appearance:
         """One stage of the material schedule on the current geometry."""
         if self.driver is None or self.driver.done:
             return None
-        if (self.driver.stage == "specular" and self.decision is not None and not self.decision.specular
-                and ("specular" in self.overrides or not self.try_lobe(mesh, material, views, level))):
-            self.driver.schedule.stage = "done"  # diffuse-only (forced, or the lobe tried did not pay)
+        if self.driver.stage == "specular" and self.decision is not None and not self.decision.specular:
+            # diffuse-only, re-checked on entering the stage: no specular lobe to texture
+            self.driver.schedule.stage = "done"
             return None
         start = time.perf_counter()
         stage_before = self.driver.stage
@@ -178,24 +177,6 @@ class Appearance:
         if self.driver.stage != stage_before and self.driver.stage == "specular":
             self.decide(mesh, material, views, reason="materials became spatially varying")
         return {"stage": stage_before, "loss": result.loss, "seconds": round(time.perf_counter() - start, 3)}
-
-    def try_lobe(self, mesh, material, views, level: int) -> bool:
-        """The lobe tried under a diffuse-only decision (``MaterialDriver.try_lobe``); kept, it is on."""
-        start = time.perf_counter()
-        self.emit("stage", stage="material:lobe", level=level, faces=mesh.n_faces)
-        trial = {"level": level, **self.driver.try_lobe(self._renderer(mesh, material, views, geometry=False), [
-            v.target for v in views], self._masks(views), material, self.emit)}
-        trial["seconds"] = round(time.perf_counter() - start, 3)
-        self.seconds += trial["seconds"]
-        self.lobe_trials.append(trial)
-        if trial["kept"]:
-            self.decision.specular, self.specular_off = True, False
-            self.decision.reasons["specular"] += f"; the lobe lowered the full-view loss by {100 * trial['gain']:.1f}%"
-            self.history.append({"reason": "specular stage: the lobe tried", "measured": {"lobe_trial": trial},
-                                 "enabled": {**self.history[-1]["enabled"], "specular": True},
-                                 "why": self.decision.reasons, "forced": {}, "seconds": trial["seconds"]})
-            self.emit("effects", **self.history[-1])
-        return trial["kept"]
 
     def full_loss(self, mesh, material, views) -> float:
         """The material's loss over ``views`` as the schedule scores a cycle (``stages.evaluate_loss``)."""
@@ -287,7 +268,7 @@ class Appearance:
                "lighting": self.lighting_report()}
         if self.driver is not None:
             write_glb(folder / "result.glb", mesh, material)
-            out["material_schedule"] = dict(self.driver.report(), lobe_trials=self.lobe_trials)
+            out["material_schedule"] = self.driver.report()
         return out
 
     # -- effects -----------------------------------------------------------------------------------
@@ -297,10 +278,16 @@ class Appearance:
         cfg = effects.EffectsConfig(max_depth_probe=max(self.config.max_depth, 4))
         probe = [v for v in views]
         renderer = self._renderer(mesh, material, probe, geometry=False, settings=RenderSettings(spp=cfg.spp))
+        found = self.decision is not None and self.decision.specular and self.measure
         self.decision = effects.decide(renderer, [v.target for v in probe],
                                        [v.mask if v.mask is not None else np.ones(v.target.shape[:2]) for v in probe],
                                        _emitters(self.capture), cfg, self.overrides, self.measure,
                                        probe=self._cost_probe(mesh, material, views))
+        if found and not self.decision.specular and "specular" not in self.overrides:
+            # a lobe found stays: the lighting and albedo fitted since have taken up part of the
+            # highlights, which the test measures against diffuse shading under that lighting
+            self.decision.specular = True
+            self.decision.reasons["specular"] += "; kept on: highlights were measured earlier in the run"
         if "costs" in self.decision.measured:
             self.costs_from = self.costs_from or reason
             self.decision.measured["costs_measured_at"] = self.costs_from
