@@ -8,7 +8,13 @@ hole) are dropped. Screened Poisson reconstruction of the remaining oriented poi
 closed manifold without interior or self-intersecting triangles, whose genus may differ
 from the input's. Screened Poisson closes every gap, including the one the dropped hits left
 over a hole, so the result is then cut to the visual hull (its intersection with the masks'
-cones) and simplified to the face target."""
+cones) and simplified to the face target.
+
+A handle shows in the images as a hole in some mask that the views see through.
+``handles_supported`` tells whether a rebuilt surface that has more handles than the current
+one lets the views see through more of the masks' holes; where it does not, the handles are
+the hull cut's own (tunnels that the cones of several silhouettes leave between them, which
+no single view sees through) and ``rebuild`` refuses the surface."""
 
 from __future__ import annotations
 
@@ -22,11 +28,11 @@ from ..capture.model import Camera
 from .init.hull import HullConfig, MaskView, grid_points, sample
 from .isosurface import marching_tetrahedra
 from .mesh import Mesh
-from .poisson import depth_for_resolution, poisson
+from .poisson import SurfaceReconstructionError, depth_for_resolution, poisson
 from .raycast import RayCaster, pixel_rays
 from .sampling import sample_surface
 from .simplify import edge_length_for_faces, simplify
-from .topology import keep_largest_components
+from .topology import inspect, keep_largest_components
 
 
 @dataclass
@@ -81,6 +87,48 @@ def visible_samples(mesh: Mesh, cameras: list[Camera], masks: list[np.ndarray] |
     return VisibleSamples(p, n, len(o), back_faces, dropped)
 
 
+def mask_holes(mask: np.ndarray) -> np.ndarray:
+    """The background pixels the object encloses in ``mask`` (not connected to the frame's
+    border): where a view sees through the object."""
+    background = mask <= 0.5
+    labels, _ = ndimage.label(background)
+    border = np.unique(np.concatenate([labels[0], labels[-1], labels[:, 0], labels[:, -1]]))
+    return background & ~np.isin(labels, border)
+
+
+def see_through(mesh: Mesh, cameras: list[Camera], masks: list[np.ndarray]) -> int:
+    """How many mask-hole pixels (``mask_holes``) the rays of their cameras pass through
+    ``mesh`` without a hit."""
+    caster, seen = RayCaster(mesh), 0
+    for cam, mask in zip(cameras, masks):
+        holes = mask_holes(mask)
+        if not holes.any():
+            continue
+        y, x = np.nonzero(holes)
+        o, d = pixel_rays(cam, np.c_[x, y])
+        seen += int(np.sum(~caster.intersect(o, d).hit))
+    return seen
+
+
+def handles_supported(old: Mesh, new: Mesh, cameras: list[Camera], masks: list[np.ndarray] | None,
+                      min_pixels: int = 8) -> dict:
+    """Whether the handles ``new`` has beyond ``old``'s are seen in the images: every handle
+    added must let the views see through at least ``min_pixels`` more mask-hole pixels
+    (``see_through``; 8: a hole of 2 x 2 pixels in two views, as one view's hole may be an
+    error of its mask). Returns {"supported", "genus_before", "genus_after", "see_through_before",
+    "see_through_after"}; a rebuilt surface with no more handles is always supported."""
+    before, after = inspect(old).genus, inspect(new).genus
+    out = {"genus_before": before, "genus_after": after, "see_through_before": None, "see_through_after": None}
+    added = (after or 0) - (before or 0)
+    if added <= 0 or before is None:
+        return {"supported": True, **out}
+    if masks is None:
+        return {"supported": False, **out}
+    out["see_through_before"] = seen_old = see_through(old, cameras, masks)
+    out["see_through_after"] = seen_new = see_through(new, cameras, masks)
+    return {"supported": seen_new - seen_old >= min_pixels * added, **out}
+
+
 def signed_distance(mesh: Mesh, points: np.ndarray, samples: int = 200_000) -> np.ndarray:
     """Approximate signed distance (negative inside) of ``points`` to a closed mesh: the
     distance to the nearest of dense surface samples, signed by that sample's face normal."""
@@ -120,6 +168,23 @@ def poisson_from_samples(samples: VisibleSamples, mesh: Mesh, target_faces: int,
     if masks is not None and cameras is not None:
         rebuilt = clip_to_masks(rebuilt, cameras, masks, spacing)
     return simplify(rebuilt, target_faces)
+
+
+def rebuild(samples: VisibleSamples, mesh: Mesh, target_faces: int, cameras: list[Camera],
+            masks: list[np.ndarray] | None, config: RemeshConfig | None = None) -> tuple[Mesh, dict]:
+    """``poisson_from_samples``, checked: a closed manifold whose handles beyond ``mesh``'s are
+    seen through in the masks (``handles_supported``, returned with the surface). Raises
+    SurfaceReconstructionError otherwise: the current surface should stay."""
+    rebuilt = poisson_from_samples(samples, mesh, target_faces, config, cameras, masks)
+    report = inspect(rebuilt)
+    if not report.closed_manifold:  # too few consistent samples (a tangled mesh): Poisson leaves holes
+        raise SurfaceReconstructionError(f"the rebuilt surface is not a closed manifold ({', '.join(report.issues)})")
+    handles = handles_supported(mesh, rebuilt, cameras, masks)
+    if not handles["supported"]:  # the cut to the hull left tunnels the images do not show
+        raise SurfaceReconstructionError(
+            f"the rebuilt surface adds {handles['genus_after'] - handles['genus_before']} handles "
+            f"(genus {handles['genus_before']} -> {handles['genus_after']}) that no view sees through")
+    return rebuilt, handles
 
 
 def remesh(mesh: Mesh, cameras: list[Camera], masks: list[np.ndarray] | None, target_faces: int,

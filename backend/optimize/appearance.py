@@ -40,7 +40,7 @@ class Appearance:
       estimate, which effects matter and picks the integrator, depth, shadow gradients and the
       specular lobe; re-checked after every re-mesh and when materials become spatially varying,
       and after every geometry level while the lobe is off (turned on, it restarts from neutral
-      values and its constants are fitted).
+      values and its constants are fitted; once on, a later measurement does not turn it off).
       ``all`` or a list forces them. Each decision is an ``effects`` event.
     - A fitted lighting (``--lighting estimate``/``flash``) gets constant-material cycles on the
       initial mesh before any geometry step (``light_first``), and restarts with the material
@@ -278,10 +278,16 @@ class Appearance:
         cfg = effects.EffectsConfig(max_depth_probe=max(self.config.max_depth, 4))
         probe = [v for v in views]
         renderer = self._renderer(mesh, material, probe, geometry=False, settings=RenderSettings(spp=cfg.spp))
+        found = self.decision is not None and self.decision.specular and self.measure
         self.decision = effects.decide(renderer, [v.target for v in probe],
                                        [v.mask if v.mask is not None else np.ones(v.target.shape[:2]) for v in probe],
                                        _emitters(self.capture), cfg, self.overrides, self.measure,
                                        probe=self._cost_probe(mesh, material, views))
+        if found and not self.decision.specular and "specular" not in self.overrides:
+            # a lobe found stays: the lighting and albedo fitted since have taken up part of the
+            # highlights, which the test measures against diffuse shading under that lighting
+            self.decision.specular = True
+            self.decision.reasons["specular"] += "; kept on: highlights were measured earlier in the run"
         if "costs" in self.decision.measured:
             self.costs_from = self.costs_from or reason
             self.decision.measured["costs_measured_at"] = self.costs_from

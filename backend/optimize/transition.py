@@ -1,13 +1,14 @@
 """Between two levels: re-mesh when the surface has become inconsistent (ray casting +
 screened Poisson), else subdivide 1-to-4 and simplify to the face budget. Either way the
-material is carried over: resampled at the closest points of the old surface."""
+material is carried over: resampled at the closest points of the old surface. A re-mesh
+that adds handles no view sees through is not applied (``remesh.handles_supported``)."""
 
 from __future__ import annotations
 
 import time
 
 from ..geometry.poisson import SurfaceReconstructionError
-from ..geometry.remesh import poisson_from_samples, visible_samples
+from ..geometry.remesh import rebuild, visible_samples
 from ..geometry.subdivide import midpoint
 from ..geometry.topology import inspect
 
@@ -44,15 +45,11 @@ def _remesh(fit, appearance, old) -> bool:
     samples = visible_samples(old, cameras, masks)
     hits = len(samples.points) + samples.back_faces + samples.outside_masks
     share = (samples.back_faces + samples.outside_masks) / max(hits, 1)
-    remeshed = None
+    remeshed, handles = None, None
     if c.remesh == "always" or share > c.remesh_threshold:
         target = s.budget.next_target(old.n_faces)
         try:
-            remeshed = poisson_from_samples(samples, old, target, cameras=cameras, masks=masks)
-            report = inspect(remeshed)
-            if not report.closed_manifold:  # too few consistent samples (a tangled mesh): Poisson leaves holes
-                raise SurfaceReconstructionError("the rebuilt surface is not a closed manifold "
-                                                 f"({', '.join(report.issues)})")
+            remeshed, handles = rebuild(samples, old, target, cameras, masks)
         except SurfaceReconstructionError as err:  # the current surface stays; the level goes on
             fit.emit("warning", message=f"re-meshing not applied: {err}")
             remeshed = None
@@ -67,5 +64,5 @@ def _remesh(fit, appearance, old) -> bool:
                            "inconsistent_share": round(share, 5), "back_faces": samples.back_faces,
                            "outside_masks": samples.outside_masks, "applied": remeshed is not None,
                            "faces": None if remeshed is None else remeshed.n_faces,
-                           "genus": None if remeshed is None else inspect(remeshed).genus}
+                           "genus": None if remeshed is None else inspect(remeshed).genus, "handles": handles}
     return remeshed is not None

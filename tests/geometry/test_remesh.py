@@ -92,3 +92,62 @@ def test_a_remesh_with_too_few_samples_keeps_the_surface(torus_capture, tmp_path
     assert any("re-meshing not applied: only" in w and "consistent surface samples" in w for w in warnings), warnings
     report = json.loads((run / "report.json").read_text())
     assert report["levels"][0]["remesh"]["applied"] is False and len(report["levels"]) == 2
+
+
+def _silhouettes(mesh, cameras):
+    """Each camera's mask of ``mesh`` (1 where a pixel's ray hits it)."""
+    from backend.geometry.raycast import RayCaster, pixel_rays
+
+    caster = RayCaster(mesh)
+    return [caster.intersect(*pixel_rays(c)).hit.reshape(c.height, c.width).astype(np.float32) for c in cameras]
+
+
+def _bumpy(subdivisions: int = 4) -> Mesh:
+    """A genus-0 star-shaped blob with deep bumps: contours everywhere the hull cut can graze."""
+    blob = icosphere(subdivisions)
+    v = blob.vertices
+    blob.vertices = v * (1 + 0.3 * np.sin(4 * v[:, :1]) * np.sin(4 * v[:, 1:2]) * np.cos(3 * v[:, 2:]))
+    return blob
+
+
+def test_a_remesh_keeps_a_genus_0_object_at_genus_0():
+    """The surface itself, re-meshed against its own silhouettes (no mask has a hole): what a
+    level would go on with (``rebuild``'s surface, or the current one when it refuses) has
+    genus 0; a refusal names the handles the cut added."""
+    from backend.geometry.poisson import SurfaceReconstructionError
+    from backend.geometry.remesh import poisson_from_samples, rebuild
+    from backend.synth.layout import fibonacci_sphere, orbit_cameras
+
+    blob = _bumpy()
+    assert genus(blob) == 0
+    cameras = orbit_cameras(fibonacci_sphere(12), np.zeros(3), 1.3, 40)
+    masks = _silhouettes(blob, cameras)
+    samples = visible_samples(blob, cameras, masks)
+    cut = poisson_from_samples(samples, blob, 4000, cameras=cameras, masks=masks)
+    try:
+        mesh, handles = rebuild(samples, blob, 4000, cameras, masks)
+    except SurfaceReconstructionError as err:
+        assert "handles" in str(err) and (genus(cut) or 0) > 0, err
+        mesh = blob
+    else:
+        assert handles["genus_after"] == 0 and mesh.n_faces <= 4000
+    assert genus(mesh) == 0
+
+
+def test_added_handles_need_views_that_see_through_them():
+    """A torus rebuilt from a sphere: supported where the masks show its hole, not where they
+    show a sphere; a rebuilt surface with no more handles is always supported."""
+    from backend.geometry.remesh import handles_supported, mask_holes
+    from backend.synth.layout import fibonacci_sphere, orbit_cameras
+
+    ring, ball = torus(), icosphere(3, 1.35)
+    cameras = orbit_cameras(fibonacci_sphere(8), np.zeros(3), 1.4, 32)
+    ring_masks, ball_masks = _silhouettes(ring, cameras), _silhouettes(ball, cameras)
+    assert sum(int(mask_holes(m).sum()) for m in ring_masks) > 20
+    assert not any(mask_holes(m).any() for m in ball_masks)
+    seen = handles_supported(ball, ring, cameras, ring_masks)
+    assert seen["supported"] and (seen["genus_before"], seen["genus_after"]) == (0, 1)
+    assert seen["see_through_after"] > seen["see_through_before"] + 20
+    assert not handles_supported(ball, ring, cameras, ball_masks)["supported"]
+    assert not handles_supported(ball, ring, cameras, None)["supported"]
+    assert handles_supported(ring, ball, cameras, ball_masks)["supported"]
