@@ -8,8 +8,9 @@ divides the frame by the gain instead (``Exposure.correct``: T_i / g_i against r
 same model, the residual of frame i weighed by 1 / g_i, and every loss of the run (geometry
 steps, material stages, validation) takes it without a change of its own.
 
-Solve. After every material cycle the frames are rendered with the current mesh, material and
-light, and per frame and channel
+Solve. After every material cycle whose albedo is a texture (a constant albedo standing for a
+textured object would put each view's mean texture colour into its gains) the frames are
+rendered with the current mesh, material and light, and per frame and channel
 
     l_i = log( sum_p w T_i / sum_p w R_i )           (w: the mask, its outline band left out)
 
@@ -38,9 +39,11 @@ import numpy as np
 
 MODES = ("auto", "off", "per-frame")
 HELP = ("per-frame exposure and white balance (three gains a frame, solved between material stages): "
-        "'auto' (the default) fits them for real captures (video, photos, imported datasets) and not for "
-        "synthetic ones, whose frames share one exposure; 'per-frame' always; 'off' never")
-SYNTHETIC_SOURCES = ("synth", "bench", "bench stability")  # capture.json provenance.source of rendered captures
+        "'auto' (the default) fits them for captures made from a video or photos (capture-from-video: a "
+        "phone exposes every frame on its own), not for imported datasets or rendered captures; "
+        "'per-frame' always; 'off' never")
+# capture.json provenance.source of the captures ``auto`` fits gains for: capture-from-video's
+AUTO_SOURCES = ("video", "images")
 PRIOR = 0.05  # lambda = sigma^2 / tau^2: how strongly a frame's gain is pulled to the median
 LIMIT = float(np.log(4.0))  # |a| at most: gains within [1/4, 4]
 SOLVE_SIZE = 96  # long side of the renders a solve compares (px)
@@ -51,14 +54,16 @@ CONVENTION = "mean log-gain over frames = 0 per channel (geometric mean of the g
 
 def enabled(mode: str, capture) -> bool:
     """Whether ``--exposure mode`` fits gains for ``capture``: ``auto`` by what capture.json
-    says of its source (rendered captures have one exposure; no source recorded counts as
-    rendered, since every importer and ``capture-from-video`` records one)."""
+    says of its source, on for a phone's video or photos (``AUTO_SOURCES``). Rendered captures
+    share one exposure, and a fit costs them a little albedo accuracy; imported datasets are
+    shot with fixed settings in the main (DTU's per-view brightness follows the camera's
+    direction, light that a rig map does not carry, not the exposure: fitted gains took it up
+    and the held-out views lost 1 dB, docs/notes/2026-12-02-exposure.md)."""
     if mode not in MODES:
         raise ValueError(f"unknown exposure mode {mode!r}")
     if mode != "auto":
         return mode == "per-frame"
-    source = (capture.provenance or {}).get("source")
-    return source is not None and source not in SYNTHETIC_SOURCES
+    return (capture.provenance or {}).get("source") in AUTO_SOURCES
 
 
 class Exposure:
