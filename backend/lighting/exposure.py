@@ -8,9 +8,8 @@ divides the frame by the gain instead (``Exposure.correct``: T_i / g_i against r
 same model, the residual of frame i weighed by 1 / g_i, and every loss of the run (geometry
 steps, material stages, validation) takes it without a change of its own.
 
-Solve. After every material cycle whose albedo is a texture (a constant albedo standing for a
-textured object would put each view's mean texture colour into its gains) the frames are
-rendered with the current mesh, material and light, and per frame and channel
+Solve. After every material cycle the frames are rendered with the current mesh, material and
+light, and per frame and channel
 
     l_i = log( sum_p w T_i / sum_p w R_i )           (w: the mask, its outline band left out)
 
@@ -58,7 +57,7 @@ def enabled(mode: str, capture) -> bool:
     share one exposure, and a fit costs them a little albedo accuracy; imported datasets are
     shot with fixed settings in the main (DTU's per-view brightness follows the camera's
     direction, light that a rig map does not carry, not the exposure: fitted gains took it up
-    and the held-out views lost 1 dB, docs/notes/2026-12-02-exposure.md)."""
+    and the held-out views lost 2.6 dB, docs/notes/2026-12-02-exposure.md)."""
     if mode not in MODES:
         raise ValueError(f"unknown exposure mode {mode!r}")
     if mode != "auto":

@@ -49,7 +49,7 @@ class Appearance:
       initial mesh before any geometry step (``light_first``), and restarts with the material
       once geometry has converged, to be fitted again on the final surface (``finalise``).
     - ``--exposure`` (backend.lighting.exposure): per-frame gains solved in closed form after
-      every textured material cycle (``solve_exposure``) and divided out of the views' targets by the
+      every material cycle (``solve_exposure``) and divided out of the views' targets by the
       run's ViewSet (``use_views``), so the next level, cycle and validation fit them.
     - The albedo's scale (backend.lighting.convention.AlbedoScale): the mean-albedo default,
       ``--known-albedo`` or ``--map-calibrated``; ``report.json`` ``albedo_scale`` says which.
@@ -216,8 +216,7 @@ class Appearance:
             s = self.albedo_scale.factor(material)  # the captured map's factor takes 1 / s
             rescale_albedo(material, s)
             material.light_factor /= s
-        if material.channels["albedo"].kind == "colors":  # a constant albedo's texture would go into the gains
-            self.solve_exposure(mesh, material)
+        self.solve_exposure(mesh, material)
         if self.decision is not None and not self.decision.specular:
             material.disable("specular")  # the constant stage fits every channel: keep the diffuse-only model
         self.seconds += time.perf_counter() - start

@@ -120,11 +120,11 @@ def _albedo_error(material, truth) -> float:
 def test_per_frame_gains_are_recovered_and_the_albedo_keeps_its_accuracy(gained):
     root, gains = gained
     truth = ALBEDO * _geomean(gains)  # the gauge: the gains' geometric mean is 1, the albedo carries the rest
-    on, material_on, residual_on = _fit(root / "gained", "per-frame", cycles=6)
+    on, material_on, residual_on = _fit(root / "gained", "per-frame")
     fitted = on.exposure.exposure.gains
     assert np.abs(fitted / (gains / _geomean(gains)) - 1).max() < 0.05
-    _, material_off, residual_off = _fit(root / "gained", "off", cycles=6)
-    _, material_constant, _ = _fit(root / "constant", "off", cycles=6)
+    _, material_off, residual_off = _fit(root / "gained", "off")
+    _, material_constant, _ = _fit(root / "constant", "off")
     error_on, error_off = _albedo_error(material_on, truth), _albedo_error(material_off, truth)
     assert error_on <= _albedo_error(material_constant, truth) + 0.01
     assert error_off > error_on and residual_off > 2 * residual_on, (error_off, error_on, residual_off, residual_on)
