@@ -77,6 +77,12 @@ class SFT_SceneSettings(bpy.types.PropertyGroup):
     env_strength: FloatProperty(name="Strength", default=1.0, min=0.0, soft_max=10.0, update=_plan_stale)
     env_rotation: FloatProperty(name="Rotation Z", default=0.0, soft_min=-180.0, soft_max=180.0,
                                 description="Environment rotation about Z, degrees", update=_plan_stale)
+    map_calibrated: BoolProperty(
+        name="Strength Calibrated", default=False,
+        description="The map's strength is calibrated: keep it (no brightness factor is fitted), so the map sets "
+                    "the albedo's scale. Off: a brightness factor is fitted with the albedo. A known median albedo "
+                    "is set with Extra Arguments: --known-albedo R,G,B",
+        update=_plan_stale)
     preset: EnumProperty(name="Quality", items=QUALITY, default="auto",
                          description="Reconstruction quality preset")
     plan_text: StringProperty(name="Plan", default="",

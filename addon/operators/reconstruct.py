@@ -56,6 +56,7 @@ def method_args(sft, init_mesh: Path | None = None) -> list[str]:
     elif sft.env_path:
         args += ["--env", str(abspath(sft.env_path)), "--env-strength", f"{sft.env_strength:g}",
                  "--env-rotation", f"{sft.env_rotation:g}"]
+        args += ["--map-calibrated"] if sft.map_calibrated else []
     return args
 
 

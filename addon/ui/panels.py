@@ -154,6 +154,7 @@ class SFT_PT_reconstruct(_Panel, bpy.types.Panel):
         elif sft.env_path:
             col.label(text=f"Lighting: {Path(sft.env_path).name} x{sft.env_strength:g} {sft.env_rotation:g}°",
                       icon="WORLD_DATA")
+            col.prop(sft, "map_calibrated", text="Strength calibrated (the map sets the albedo scale)")
         elif facts.point_lights:
             col.label(text=f"Lighting: the capture's point lights ({facts.point_lights})", icon="LIGHT_POINT")
         else:

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from ..lighting.exposure import HELP as EXPOSURE_HELP, MODES as EXPOSURE_MODES
 from ..lighting.modes import HELP as LIGHTING_HELP, MODES as LIGHTING_MODES
 from ..planning import job
 from ..optimize.config import STAGED_FACE_GROWTH, ReconstructConfig
@@ -45,6 +46,14 @@ def add_arguments(parser):
                         help="with a capture folder and --env: the map's strength (default 1)")
     add_lighting_arguments(parser)
     parser.add_argument("--lighting", choices=LIGHTING_MODES, help=LIGHTING_HELP)
+    parser.add_argument("--exposure", choices=EXPOSURE_MODES, help=EXPOSURE_HELP)
+    parser.add_argument("--map-calibrated", action="store_true",
+                        help="the map's strength is calibrated: keep it (no brightness factor is fitted), so the map "
+                             "sets the albedo's scale (a captured map or --env only)")
+    parser.add_argument("--known-albedo", metavar="R,G,B",
+                        help="the object's median albedo (linear RGB in (0, 1)): the albedo is scaled, and the "
+                             "light with it, so the median's level is this colour's (default: mean albedo 0.5 "
+                             "under a fitted light)")
     parser.add_argument("--out", required=True, type=Path, metavar="RUN", help="run folder")
     parser.add_argument("--preset", choices=sorted(PRESETS),
                         help=f"quality preset (default {DEFAULT}; with --time-budget, the most accurate preset whose "

@@ -87,10 +87,13 @@ class LightingModel(ABC):
         latent: its parameters, a log scale of the light (numpy float32); the relight copies
             it and puts it back (backend.optimize.relight).
         lr: Adam's step on ``latent`` in its fits.
+        albedo_scale: what sets the albedo's scale in ``normalise``
+            (backend.lighting.convention.AlbedoScale; None: the mean-albedo default).
     """
 
     latent: "np.ndarray"
     lr: float
+    albedo_scale = None
 
     @abstractmethod
     def fit(self) -> LightingFit:

@@ -244,7 +244,7 @@ class EstimatedEnvironment(LightingModel):
         if light != 1.0:
             self.rescale(light)
             material.light_factor = 1.0
-        s = normalise_albedo(material)
+        s = normalise_albedo(material, self.albedo_scale)
         self.rescale(1.0 / s)
         self.scales.append(round(s, 6))
         return s

@@ -130,7 +130,7 @@ class Flash(LightingModel):
     def normalise(self, material) -> float:
         """The scale convention (backend.lighting.convention): albedo x s, intensity / s.
         Returns s."""
-        s = normalise_albedo(material)
+        s = normalise_albedo(material, self.albedo_scale)
         self.latent = self._latent - np.float32(math.log(s))
         self.scales.append(round(s, 6))
         return s

@@ -1,5 +1,6 @@
-"""Appearance between geometry levels: the staged material schedule, the fitted lighting
-and the choice of light-transport effects (the rules: ``Appearance``)."""
+"""Appearance between geometry levels: the staged material schedule, the fitted lighting,
+the per-frame camera response and the choice of light-transport effects (the rules:
+``Appearance``). Longer than 400 lines: the one place where these meet, each in a few methods."""
 
 from __future__ import annotations
 
@@ -9,6 +10,7 @@ import numpy as np
 
 from ..capture.model import Capture
 from ..errors import InputError
+from ..lighting.convention import AlbedoScale, check_scale, rescale_albedo, scale_report
 from ..lighting.estimated_map import FILENAME as ESTIMATED_MAP
 from ..lighting.estimated_map import EstimatedEnvironment
 from ..lighting.flash import Flash
@@ -20,6 +22,7 @@ from ..material.stages import evaluate_loss
 from ..render import effects
 from ..render.scene import RenderSettings, SceneRenderer
 from . import effect_costs
+from .exposure_fit import ExposureFit
 from .objective import Objective
 from .relight import Relight
 from .stiffness import STIFF
@@ -45,6 +48,11 @@ class Appearance:
     - A fitted lighting (``--lighting estimate``/``flash``) gets constant-material cycles on the
       initial mesh before any geometry step (``light_first``), and restarts with the material
       once geometry has converged, to be fitted again on the final surface (``finalise``).
+    - ``--exposure`` (backend.lighting.exposure): per-frame gains solved in closed form after
+      every material cycle (``solve_exposure``) and divided out of the views' targets by the
+      run's ViewSet (``use_views``), so the next level, cycle and validation fit them.
+    - The albedo's scale (backend.lighting.convention.AlbedoScale): the mean-albedo default,
+      ``--known-albedo`` or ``--map-calibrated``; ``report.json`` ``albedo_scale`` says which.
     """
 
     def __init__(self, capture: Capture, config, emit):
@@ -61,6 +69,22 @@ class Appearance:
         # the lighting fitted with the material: --lighting estimate's map, --lighting flash's flash
         self.lighting: EstimatedEnvironment | Flash | None = None
         self.relight = Relight()
+        self.albedo_scale = AlbedoScale.from_config(config)
+        if self.driver is not None and self.albedo_scale.mode == "map":
+            self.driver.schedule.light_fitted = True  # the map's strength is calibrated: no factor fitted
+        self.exposure: ExposureFit | None = None  # --exposure (``use_views``)
+
+    def use_views(self, viewset) -> None:
+        """The run's views; ``--exposure`` on for this capture divides their targets by the
+        per-frame gains (backend.optimize.exposure_fit), solved after every material cycle."""
+        self.exposure = ExposureFit.start(self.capture, self.config, viewset, self.staged,
+                                          lambda message: self.emit("warning", message=message))
+
+    def solve_exposure(self, mesh, material) -> None:
+        if self.exposure is not None:
+            start = time.perf_counter()
+            self.exposure.solve(lambda views, settings: self._renderer(mesh, material, views, False, settings))
+            self.seconds += time.perf_counter() - start
 
     # -- lighting ----------------------------------------------------------------------------------
     def start_lighting(self, folder, resume: bool = False) -> None:
@@ -77,6 +101,8 @@ class Appearance:
             self.lighting = Flash.initial(self.capture)
         else:
             return
+        if self.albedo_scale.mode == "known":
+            self.lighting.albedo_scale = self.albedo_scale
         if self.driver is None:
             what = "map" if self.config.lighting in ESTIMATED else "flash intensity"
             self.emit("warning", message=f"--lighting {self.config.lighting} fits the {what} in the material "
@@ -93,8 +119,20 @@ class Appearance:
 
     def lighting_report(self) -> dict:
         if self.lighting is not None:
-            return dict(self.lighting.report(), relight=self.relight.record)
+            out = dict(self.lighting.report(), relight=self.relight.record)
+            out["scale_convention"] = self.albedo_scale.describe(self._light_word())
+            return out
         return {"model": "captured", "emitters": _emitters(self.capture)}
+
+    def _light_word(self) -> str:
+        if isinstance(self.lighting, Flash):
+            return "flash intensity"
+        return "map" if self.lighting is not None else "map brightness factor"
+
+    def albedo_scale_report(self, material) -> dict:
+        """report.json ``albedo_scale`` (backend.lighting.convention.scale_report)."""
+        return scale_report(self.albedo_scale, self._light_word(), self.lighting is not None,
+                            self.capture.environment is not None, material if self.driver is not None else None)
 
     @staticmethod
     def check(capture: Capture, config):
@@ -107,6 +145,8 @@ class Appearance:
         driver = None
         if factory.kind_for(config.material) == "meshcolors":
             driver = MaterialDriver(capture)  # raises InputError naming the frame of a bad mask
+        check_scale(config, driver is not None, config.lighting in ESTIMATED or config.lighting == "flash",
+                    capture.environment is not None)
         return measure, overrides, driver
 
     # -- materials ---------------------------------------------------------------------------------
@@ -159,6 +199,7 @@ class Appearance:
             self.driver.schedule.stage = "done"
             return None
         start = time.perf_counter()
+        views = views if self.exposure is None else self.exposure.current(views)
         stage_before = self.driver.stage
         self.emit("stage", stage=f"material:{stage_before}", level=level, faces=mesh.n_faces)
         if self.lighting is not None:
@@ -171,6 +212,11 @@ class Appearance:
             self.lighting.normalise(material)  # the scale convention; the renders do not change
             self.capture.environment = self.lighting.environment()
             self._lighting_event("fitted", stage_before)
+        elif self.albedo_scale.mode == "known" and self.capture.environment is not None:
+            s = self.albedo_scale.factor(material)  # the captured map's factor takes 1 / s
+            rescale_albedo(material, s)
+            material.light_factor /= s
+        self.solve_exposure(mesh, material)
         if self.decision is not None and not self.decision.specular:
             material.disable("specular")  # the constant stage fits every channel: keep the diffuse-only model
         self.seconds += time.perf_counter() - start
@@ -180,6 +226,7 @@ class Appearance:
 
     def full_loss(self, mesh, material, views) -> float:
         """The material's loss over ``views`` as the schedule scores a cycle (``stages.evaluate_loss``)."""
+        views = views if self.exposure is None else self.exposure.current(views)
         renderer = self._renderer(mesh, material, views, geometry=False)
         return evaluate_loss(renderer, [v.target for v in views], self._masks(views), material)
 
@@ -253,6 +300,8 @@ class Appearance:
         state = self.driver.state()
         if self.lighting is not None:
             state["lighting"] = self.lighting.state()
+        if self.exposure is not None:
+            state["exposure"] = self.exposure.exposure.state()
         return state
 
     def restore(self, state: dict | None, views) -> None:
@@ -262,10 +311,14 @@ class Appearance:
         if self.lighting is not None and state and state.get("lighting"):
             self.lighting.restore(state["lighting"])
             self._lighting_event("resumed")
+        if self.exposure is not None and state:
+            self.exposure.exposure.restore(state.get("exposure"))
 
     def finish(self, folder, mesh, material) -> dict:
         out = {"effects": self.history, "appearance_seconds": round(self.seconds, 3),
-               "lighting": self.lighting_report()}
+               "lighting": self.lighting_report(), "albedo_scale": self.albedo_scale_report(material),
+               "exposure": (self.exposure.exposure.report() if self.exposure is not None
+                            else {"model": "off", "mode": self.config.exposure})}
         if self.driver is not None:
             write_glb(folder / "result.glb", mesh, material)
             out["material_schedule"] = self.driver.report()

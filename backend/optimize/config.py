@@ -19,6 +19,13 @@ class ReconstructConfig:
     # captured (the capture's lights) or estimate (an environment map fitted with the material,
     # backend.lighting.estimated_map); the command resolves its default (backend.lighting.modes)
     lighting: str = "captured"
+    # per-frame exposure and white balance (backend.lighting.exposure): auto (real captures),
+    # off, per-frame
+    exposure: str = "auto"
+    # what sets the albedo's scale (backend.lighting.convention.AlbedoScale): a captured map's
+    # strength kept (no brightness factor fitted), or the level of the object's median albedo
+    map_calibrated: bool = False
+    known_albedo: tuple[float, float, float] | None = None
     initial_faces: int = 5000  # face count of the initial mesh; the budget D starts at twice this
     max_faces: int = 250_000  # refinement stops once the budget would exceed this
     # None: the face budget grows by initial_faces / 2 a level (the paper); else it is multiplied

@@ -115,6 +115,7 @@ class Reconstruction:
         self.objective_factory = objective_factory
         self.viewset = ViewSet(capture, config.max_size)
         self.appearance = Appearance(capture, config, emit)
+        self.appearance.use_views(self.viewset)  # --exposure: the per-frame gains divide its targets
         self.appearance.start_lighting(folder.path, resume)
         self.budget = self.paced.budget = Budget(config, self.state, staged=self.appearance.staged, started=started)
         self.texture = TextureStage(capture, config, self.appearance.staged)

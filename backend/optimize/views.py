@@ -59,6 +59,8 @@ class ViewSet:
     def __init__(self, capture: Capture, max_size: int):
         self.views: list[View] = []
         self.premultiplied = 0
+        # per-frame gains (backend.lighting.exposure.Exposure), divided out of the targets by ``at``
+        self.exposure = None
         for frame in capture.frames:
             image = capture.camera_response.radiance(read_linear_rgb(frame.image))
             mask = read_mask(frame.mask) if frame.mask else None
@@ -78,12 +80,16 @@ class ViewSet:
     def __len__(self) -> int:
         return len(self.views)
 
-    def at(self, long_side: int) -> list[View]:
-        """The views resampled so their long side is at most ``long_side`` pixels."""
+    def at(self, long_side: int, recorded: bool = False) -> list[View]:
+        """The views resampled so their long side is at most ``long_side`` pixels, their targets
+        divided by the frames' gains when ``exposure`` is set (``recorded``: as the frames are)."""
         out = []
-        for v in self.views:
+        for i, v in enumerate(self.views):
             w, h = frame_size(v.camera, long_side)
-            out.append(View(v.name, scaled_camera(v.camera, w, h), _resize(v.target, w, h),
+            target = _resize(v.target, w, h)
+            if self.exposure is not None and not recorded:
+                target = self.exposure.correct(i, target)
+            out.append(View(v.name, scaled_camera(v.camera, w, h), target,
                             None if v.mask is None else _resize(v.mask, w, h), v.lights))
         return out
 

@@ -32,7 +32,8 @@ from .time_plan import capture_plan, level_limit, make_plan
 
 OVERRIDES = ("init", "material", "effects", "initial_faces", "iterations", "seed", "max_size", "coarse_size", "views_per_step",
              "integrator", "max_depth", "spp", "remesh", "max_levels", "level_iterations", "step", "lambda_",
-             "face_growth", "track_metrics", "track_accuracy", "held_out_every", "texture_stage", "texture_size")
+             "face_growth", "track_metrics", "track_accuracy", "held_out_every", "texture_stage", "texture_size",
+             "exposure", "map_calibrated")
 VIDEO_SUFFIXES = {".mp4", ".mov", ".m4v", ".avi", ".mkv", ".webm", ".mts", ".mpg", ".mpeg", ".ogv"}
 DEFAULT_MATERIAL = "staged"
 MATERIAL_ALIASES = {"constant": "auto", "full": "staged"}
@@ -73,11 +74,24 @@ def config_from_args(args) -> ReconstructConfig:
     values["material"] = MATERIAL_ALIASES.get(values.get("material"), values.get("material")) or DEFAULT_MATERIAL
     if args.time_budget is not None:
         values["time_budget_s"] = 60.0 * args.time_budget
+    if getattr(args, "known_albedo", None) is not None:
+        values["known_albedo"] = known_albedo(args.known_albedo)
     config = ReconstructConfig(**values)
     config.coarse_size = min(config.coarse_size, config.max_size)
     if config.face_growth is None and config.material == "staged":
         config.face_growth = STAGED_FACE_GROWTH
     return config
+
+
+def known_albedo(text: str) -> tuple[float, float, float]:
+    """``--known-albedo R,G,B``: three linear values in (0, 1), else InputError."""
+    try:
+        rgb = tuple(float(x) for x in str(text).split(","))
+    except ValueError:
+        rgb = ()
+    require(len(rgb) == 3 and all(0 < x < 1 for x in rgb), None,
+            f"--known-albedo must be three linear values in (0, 1) (got {text})", "give e.g. --known-albedo 0.6,0.45,0.3")
+    return rgb
 
 
 def settings_from_environment() -> dict:

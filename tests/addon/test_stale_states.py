@@ -20,7 +20,7 @@ PLAN = "Draft \u2248 1 min, Balanced \u2248 4 min, Final \u2248 9 min on this ca
 
 
 @pytest.mark.parametrize("name, value", [
-    ("capture_dir", "/elsewhere"), ("env_path", "/elsewhere/sky.exr"), ("env_strength", 2.0), ("env_rotation", 30.0),
+    ("capture_dir", "/elsewhere"), ("env_path", "/elsewhere/sky.exr"), ("env_strength", 2.0), ("env_rotation", 30.0), ("map_calibrated", True),
     ("time_budget", 5.0), ("track_accuracy", True), ("material", "CONSTANT"), ("init", "SPHERE"),
     ("effects", "ALL"), ("lighting", "FLASH"), ("extra_args", "--max-size 32")])
 def test_a_changed_setting_clears_the_plan_line(context, name, value):
