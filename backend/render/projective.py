@@ -146,6 +146,7 @@ def _primary_silhouette_once(integrator, scene, sensor, sampler, spp):
         it.p = ss.p
         ds, _ = sensor.sample_direction(it, mi.Point2f(0), visible)
         visible &= ds.pdf != 0
+        dr.eval(ss, ds.uv, visible)  # one kernel: the gathers below read memory, not a re-trace
         keep = dr.compress(visible)
         n = dr.width(keep)
         if n == 0:

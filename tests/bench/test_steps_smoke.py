@@ -1,7 +1,7 @@
 """The step-cost split end to end at a tiny size (real shared mesh and HDR map, real renders):
-every part of a real geometry step is timed on both paths (Mitsuba's silhouette term and
-the project's) and the parts add up to the step (which part
-costs more between configurations is left to real sizes: at 16 px it is noise)."""
+every part of a real geometry step is timed on both paths (Mitsuba's silhouette term and the
+project's) and the parts add up to the step (which part costs more between configurations or
+paths is left to real sizes: at 16 px it is noise)."""
 
 from __future__ import annotations
 
