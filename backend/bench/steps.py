@@ -10,15 +10,21 @@ parts (``objective.StepTimer``; each ends in a sync):
 
 - ``forward``: the primal render and the loss;
 - ``backward``: the backward pass less ``silhouette``;
-- ``silhouette``: the primarily visible silhouette's precomputation for the view
-  (Mitsuba's ``init_primarily_visible_silhouette``, inside the backward pass);
+- ``silhouette``: the primarily visible silhouette term up to its backward traversal: the
+  precomputation for the view (Mitsuba's ``init_primarily_visible_silhouette``) and the
+  sampling (``render_primarily_visible_silhouette``); work still pending when it starts is
+  charged to ``backward``, and where Mitsuba's plugin leaves the radiance difference lazy
+  (``main``) its tracing lands in ``backward`` too;
 - ``scene update``: new vertex positions, the BVH and the normals;
 - ``read-back``: losses and gradients to NumPy;
 - ``solve``: the gradient cap and the Large Steps solve;
 - ``other``: the rest of the step's wall time (Python).
 
-Prints one row per configuration (median seconds per step of each part over the timed steps)
-and writes the ``steps`` record."""
+Every configuration runs twice, side by side: ``main`` with the integrator's primarily visible
+silhouette as Mitsuba's plugin computes it (``silhouette_once`` off: the step as it was before
+``render.projective`` took the term over) and ``new`` with the project's term. Prints one row
+per configuration and path (median seconds per step of each part over the timed steps, and
+main's step time over new's) and writes the ``steps`` record."""
 
 from __future__ import annotations
 
@@ -48,20 +54,24 @@ def add_arguments(parser) -> None:
     parser.add_argument("--configs", default="sppi=0;sppi=12,guiding=none", help="default: %(default)s")
 
 
-def _timed_silhouette(detail, timer: StepTimer) -> None:
-    """Charge the detail's primarily visible silhouette precomputation to ``timer``."""
-    inner = detail.init_primarily_visible_silhouette
+def _timed(owner, name: str, timer: StepTimer) -> None:
+    """Charge ``owner.name``'s calls to the timer's ``silhouette`` part (pending work first
+    finishes outside it)."""
+    inner = getattr(owner, name)
 
-    def timed(scene, sensor):
+    def timed(*args):
+        dr.sync_thread()
         with timer.part("silhouette"):
-            return inner(scene, sensor)
+            return inner(*args)
 
-    detail.init_primarily_visible_silhouette = timed
+    setattr(owner, name, timed)
 
 
-def measure(bench: _Bench, config: dict, args) -> dict:
-    """Median seconds per step of every part, over ``args.steps`` timed steps of ``config``."""
+def measure(bench: _Bench, config: dict, args, path: str = "new") -> dict:
+    """Median seconds per step of every part, over ``args.steps`` timed steps of ``config``
+    on ``path`` ("main": Mitsuba's own primarily visible silhouette term)."""
     obj, integrator = bench.objective(config)
+    integrator.silhouette_once = path == "new"
     renderer = obj.renderer
 
     def render_split(view, seed, params):  # the level's render, with this configuration's integrator
@@ -71,7 +81,8 @@ def measure(bench: _Bench, config: dict, args) -> dict:
 
     renderer.render_split = render_split
     timer = obj.timer = StepTimer()
-    _timed_silhouette(integrator.proj_detail, timer)
+    _timed(integrator.proj_detail, "init_primarily_visible_silhouette", timer)
+    _timed(integrator, "render_primarily_visible_silhouette", timer)
     opt = VertexOptimizer(bench.estimate.vertices, bench.estimate.faces, args.smoothing, bench.edge * args.step_move)
     vertices = bench.estimate.vertices.copy()
     n, k = len(bench.views), args.views_per_step
@@ -104,20 +115,26 @@ def run(args) -> int:
     print(f"{a.mesh} {bench.truth_faces} faces under {a.envmap}, {a.resolution} px, {a.views} views, "
           f"{a.views_per_step} per step, max_depth {a.max_depth}, spp {a.spp}, sppp {a.sppp}; "
           f"{a.steps} timed steps each; {chosen}; load {os.getloadavg()[0]:.1f}", flush=True)
-    header = ["config", "step s", *PARTS]
+    header = ["config", "path", "step s", *PARTS, "main/new"]
     print("  ".join(f"{h:>12}" for h in header))
     rows = []
     for spec in [c.strip() for c in a.configs.split(";") if c.strip()]:
-        m = measure(bench, parse_config(spec), a)
-        rows.append({"config": spec, "step s": round(m["step"], 4),
-                     **{p: round(m[p], 4) for p in PARTS},
-                     "host share": round((m["scene update"] + m["read-back"] + m["solve"] + m["other"]) / m["step"], 3)})
-        print("  ".join(f"{v:>12}" if isinstance(v, str) else f"{v:12.4f}" for v in
-                        [spec, m["step"], *(m[p] for p in PARTS)]), flush=True)
+        main = None
+        for path in ("main", "new"):
+            m = measure(bench, parse_config(spec), a, path)
+            main = main or m["step"]
+            speedup = round(main / m["step"], 2)
+            rows.append({"config": spec, "path": path, "step s": round(m["step"], 4),
+                         **{p: round(m[p], 4) for p in PARTS},
+                         "host share": round((m["scene update"] + m["read-back"] + m["solve"] + m["other"]) / m["step"], 3),
+                         "main/new": speedup})
+            print("  ".join(f"{v:>12}" if isinstance(v, str) else f"{v:12.4f}" for v in
+                            [spec, path, m["step"], *(m[p] for p in PARTS), speedup]), flush=True)
     _records.write_record(
         "steps", title="Step cost split",
         context=(f"an HDR-lit geometry step ({a.mesh}, {bench.truth_faces} faces, {a.resolution} px, "
-                 f"{a.views_per_step} views, one bounce) in parts, median s; host: scene update, read-back, solve, Python"),
-        rows=rows, show=["config", "step s", "forward", "backward", "silhouette", "host share"], command=f"python -m backend bench steps --faces {a.faces} --resolution {a.resolution}",
+                 f"{a.views_per_step} views, one bounce) in parts, median s; host: scene update, read-back, solve, "
+                 "Python; main: Mitsuba's primarily visible silhouette term, new: render.projective's"),
+        rows=rows, show=["config", "path", "step s", "forward", "backward", "silhouette", "host share", "main/new"], command=f"python -m backend bench steps --faces {a.faces} --resolution {a.resolution}",
         variant=chosen)
     return 0

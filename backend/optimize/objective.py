@@ -29,6 +29,7 @@ class GradientRenderer(SceneRenderer):
 
     def render_split(self, view: int, seed: int, params):
         self._set_lights(view)
+        self._set_rig(view)
         return mi.render(self.scene, params, sensor=self.sensors[view], seed=seed, spp=0)
 
 

@@ -1,7 +1,25 @@
-"""Projective integrators whose indirect-silhouette guiding is cheaper to build.
+"""Projective integrators whose silhouette terms cost less per backward pass.
 
-Mitsuba's ``direct_projective`` / ``prb_projective`` with ``sppi > 0`` (shadow and
-indirect-silhouette gradients) build a guiding distribution over the boundary sample space
+Primarily visible silhouette (``silhouette_once``, on by default; False: the plugin's own
+term): Mitsuba's ``render_primarily_visible_silhouette`` forms the boundary term as a lazy
+product, (radiance difference x Jacobian / pdf) x motion, where only the motion is attached to
+the vertices, so its primal image and its backward pass both evaluate the lazy factor: the
+radiance difference (a foreground and a background path per silhouette sample) is traced
+twice. Here
+
+- the detached factor is evaluated once; both passes read it from memory;
+- the radiance difference is traced for the samples that pass the plugin's visibility test
+  alone (compacted, with their own sampler stream: an occluded or out-of-view sample
+  contributes zero), not for every lane of the wavefront;
+- with no vertex position differentiated (a material-only step) the term is zero and is
+  not traced (the radiance difference is detached, so the material gets no gradient from it;
+  the plugin's lazy term is never evaluated then, and evaluating it once must not change that).
+
+The estimate is the plugin's in expectation (the kept samples draw their own random numbers,
+so it is not the same sample for sample).
+
+Indirect silhouette (shadows, ``sppi > 0``): Mitsuba's ``direct_projective`` /
+``prb_projective`` with ``sppi > 0`` (shadow and indirect-silhouette gradients) build a guiding distribution over the boundary sample space
 (an octree by default) in every backward pass, per sensor. Its construction projects
 ``guiding_seed_spp`` seed rays per pixel onto silhouette edges, then evaluates
 ``guiding_leaf_samples`` points in every octree leaf. The distribution only steers where the
@@ -102,7 +120,65 @@ class ReusedGuiding(mi.ad.ProjectiveDetail):
         self.guiding_distr = None
 
 
+_COMPACT_SEED = 0x2545F491  # the compacted samples' stream, apart from the plugin's own seeds
+
+
+def _primary_silhouette_once(integrator, scene, sensor, sampler, spp):
+    """The primarily visible silhouette term (the plugin's ``render_primarily_visible_silhouette``
+    image), its radiance difference traced for the visible samples alone and evaluated once."""
+    film = sensor.film()
+    if not any(dr.grad_enabled(shape.vertex_positions_buffer()) for shape in scene.silhouette_shapes()
+               if shape.is_mesh()):
+        # no vertex is differentiated (a material-only step): the term is zero
+        film.prepare(integrator.aov_names())
+        return film.develop()
+    with dr.suspend_grad():
+        centre = sensor.world_transform() @ mi.Point3f(0)
+        ss = integrator.proj_detail.sample_primarily_visible_silhouette(scene, centre, sampler.next_2d(), True)
+        visible = ss.is_valid() & (ss.pdf > 0)
+        # is the boundary point in view, unoccluded? (the plugin's test)
+        back = mi.SilhouetteSample3f(ss)
+        back.d = -back.d
+        ray = back.spawn_ray()
+        ray.maxt = dr.norm(centre - ray.o) * (1 - mi.math.ShadowEpsilon)
+        visible &= ~scene.ray_test(ray, visible)
+        it = dr.zeros(mi.Interaction3f)
+        it.p = ss.p
+        ds, _ = sensor.sample_direction(it, mi.Point2f(0), visible)
+        visible &= ds.pdf != 0
+        dr.eval(ss, ds.uv, visible)  # one kernel: the gathers below read memory, not a re-trace
+        keep = dr.compress(visible)
+        n = dr.width(keep)
+        if n == 0:
+            film.prepare(integrator.aov_names())
+            return film.develop()
+        ss = dr.gather(mi.SilhouetteSample3f, ss, keep)
+        uv = dr.gather(mi.Point2f, ds.uv, keep)
+        # a fresh stream for the kept samples (the estimate needs independent samples, not these)
+        kept = sampler.clone()
+        kept.seed(integrator.silhouette_seed ^ _COMPACT_SEED, n)
+        wavelengths, weight = sensor.sample_wavelengths(dr.zeros(mi.SurfaceInteraction3f),
+                                                        kept.next_1d() if mi.is_spectral else 0, True)
+        delta, _ = integrator.sample_radiance_difference(scene, ss, 0, kept, wavelengths, mi.Bool(True))
+        delta *= weight
+        active = dr.any(delta != 0)
+        jacobian = integrator.proj_detail.sensor_jacobian(sensor, ss)
+        factor = delta * jacobian * dr.rcp(ss.pdf) * dr.rcp(mi.ScalarFloat(spp))
+        dr.eval(factor, ss, active, uv, wavelengths)
+    si = dr.zeros(mi.SurfaceInteraction3f)
+    si.p, si.prim_index, si.uv = ss.p, ss.prim_index, ss.uv
+    # the normal motion of the silhouette point: the only factor attached to the vertices
+    motion = dr.dot(ss.shape.differential_motion(si, active), ss.n)
+    film.prepare(integrator.aov_names())
+    block = film.create_block(normalize=True)
+    block.set_coalesce(block.coalesce() and spp >= 4)
+    block.put(pos=uv, wavelengths=wavelengths, value=factor * motion, weight=0, alpha=1, active=active)
+    film.put_block(block)
+    return film.develop()
+
+
 def _configure(integrator, props) -> None:
+    integrator.silhouette_once = bool(props.get("silhouette_once", True))
     integrator.proj_detail = ReusedGuiding(integrator, props.get("guiding_reuse", 1), props.get("guiding_move", 0.0))
     integrator.proj_seed_spp = props.get("guiding_seed_spp", integrator.proj_seed_spp)
     integrator.octree_extra_leaf_sample = props.get("guiding_leaf_samples", integrator.octree_extra_leaf_sample)
@@ -113,11 +189,29 @@ class ReusingDirectProjective(DirectProjectiveIntegrator):
         super().__init__(props)
         _configure(self, props)
 
+    def prepare(self, sensor, seed=0, spp=0, aovs=[]):
+        self.silhouette_seed = seed  # the last sampler's seed (render_ad's silhouette sampler)
+        return super().prepare(sensor, seed, spp, aovs)
+
+    def render_primarily_visible_silhouette(self, scene, sensor, sampler, spp):
+        if self.silhouette_once:
+            return _primary_silhouette_once(self, scene, sensor, sampler, spp)
+        return super().render_primarily_visible_silhouette(scene, sensor, sampler, spp)
+
 
 class ReusingPathProjective(PathProjectiveIntegrator):
     def __init__(self, props):
         super().__init__(props)
         _configure(self, props)
+
+    def prepare(self, sensor, seed=0, spp=0, aovs=[]):
+        self.silhouette_seed = seed  # the last sampler's seed (render_ad's silhouette sampler)
+        return super().prepare(sensor, seed, spp, aovs)
+
+    def render_primarily_visible_silhouette(self, scene, sensor, sampler, spp):
+        if self.silhouette_once:
+            return _primary_silhouette_once(self, scene, sensor, sampler, spp)
+        return super().render_primarily_visible_silhouette(scene, sensor, sampler, spp)
 
 
 mi.register_integrator("sft_direct_projective", lambda props: ReusingDirectProjective(props))

@@ -20,6 +20,7 @@ from ..capture.undistort import needs_resampling
 from ..geometry.mesh import Mesh
 from ..geometry.raycast import mitsuba_mesh  # noqa: F401  (re-exported: render.scene.mitsuba_mesh)
 from . import bsdf as _bsdf  # noqa: F401  (registers sft_surface)
+from . import projective as _projective  # noqa: F401  (registers sft_direct_projective, sft_prb_projective)
 
 GL_TO_MITSUBA_CAMERA = np.diag([-1.0, 1.0, -1.0, 1.0])
 # Mitsuba envmap local axes (x, y, z) <- Blender lookup axes (y', z', x').
@@ -63,7 +64,8 @@ class RenderSettings:
             d["max_depth"] = self.max_depth
             d["rr_depth"] = self.rr_depth
         if self.integrator.endswith("projective"):
-            d.update(sppc=self.sppc or self.spp, sppp=self.sppp, sppi=self.sppi)
+            # the plugin with the cheaper silhouette terms (render.projective), same estimates
+            d.update(type=f"sft_{self.integrator}", sppc=self.sppc or self.spp, sppp=self.sppp, sppi=self.sppi)
             if self.sppi > 0:
                 d["guiding"] = self.guiding
         return d
