@@ -55,6 +55,13 @@ DEVICES = (
 )
 
 
+MASK_MODES = [
+    ("AUTOMATIC", "Automatic", "The imported masks when there are any, else masks made from the solved cameras "
+                               "(the points the cameras circle, segmented per frame and checked against each other)"),
+    ("IMPORTED", "Imported", "Only the imported masks (Import Masks): Solve Cameras waits for them"),
+]
+
+
 class SFT_SceneSettings(bpy.types.PropertyGroup):
     capture_dir: StringProperty(
         name="Capture", subtype="DIR_PATH", default="",
@@ -69,6 +76,8 @@ class SFT_SceneSettings(bpy.types.PropertyGroup):
     env_strength: FloatProperty(name="Strength", default=1.0, min=0.0, soft_max=10.0, update=_plan_stale)
     env_rotation: FloatProperty(name="Rotation Z", default=0.0, soft_min=-180.0, soft_max=180.0,
                                 description="Environment rotation about Z, degrees", update=_plan_stale)
+    masks_mode: EnumProperty(name="Masks", items=MASK_MODES, default="AUTOMATIC",
+                             description="Where Solve Cameras takes the object masks from")
     preset: EnumProperty(name="Quality", items=QUALITY, default="auto",
                          description="Reconstruction quality preset")
     plan_text: StringProperty(name="Plan", default="",
