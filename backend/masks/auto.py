@@ -24,7 +24,7 @@ class MaskOptions:
     min_iou: float = 0.8  # a mask agreeing less with the others' visual hull drops its frame
     grid: int = 80  # voxels along the hull box's longer side
     tolerance_share: float = 0.1  # views that may disagree with a kept voxel (share, at least one)
-    edge: float = 0.01  # a region reaching this share of the frame's size from its border is cut off
+    edge: float = 0.01  # a region (0.5..99.5 percentiles of its points) this near the border is cut off
     rounds: int = 2  # GrabCut rounds: the region's seeds, then the visual hull's projection
     min_frames: int = 3
 
@@ -96,7 +96,8 @@ def make_masks(frames: dict[str, np.ndarray], sfm, options: MaskOptions | None =
         if hull is None:
             dropped[v.name] = "no object point in front of the camera"
             continue
-        lo, hi = hull.min(0), hull.max(0)
+        inside = (uv[:, 0] > -v.width) & (uv[:, 0] < 2 * v.width) & (uv[:, 1] > -v.height) & (uv[:, 1] < 2 * v.height)
+        lo, hi = np.percentile(uv[inside], [0.5, 99.5], axis=0) if inside.sum() >= 3 else (hull.min(0), hull.max(0))
         edge = options.edge * max(v.width, v.height)
         if lo[0] < edge or lo[1] < edge or hi[0] > v.width - edge or hi[1] > v.height - edge:
             dropped[v.name] = "the object's region leaves the frame"
@@ -107,7 +108,8 @@ def make_masks(frames: dict[str, np.ndarray], sfm, options: MaskOptions | None =
             masks[v.name] = segmenter(frames[v.name])
         else:
             labels = region_seeds((v.height, v.width), hull, fg_of[v.name], bg_of[v.name], options.seeds)
-            masks[v.name] = grabcut(frames[v.name], labels, options.seeds.iterations, fg_of[v.name])
+            masks[v.name] = grabcut(frames[v.name], labels, options.seeds.iterations, fg_of[v.name],
+                                        options.seeds.smooth)
     rounds = 1 if segmenter is not None else options.rounds
     scores = {}
     for r in range(rounds):
@@ -121,7 +123,8 @@ def make_masks(frames: dict[str, np.ndarray], sfm, options: MaskOptions | None =
                 voxel_px = hull3d.voxel * v.fx / max(float(np.linalg.norm(v.centre - obj.mean(0))), 1e-9)
                 labels = mask_seeds((v.height, v.width), projected[v.name], max(3, int(round(2 * voxel_px))))
                 _stamp(labels, fg_of[v.name], bg_of[v.name], options.seeds.feature_radius)
-                masks[v.name] = grabcut(frames[v.name], labels, options.seeds.iterations, fg_of[v.name])
+                masks[v.name] = grabcut(frames[v.name], labels, options.seeds.iterations, fg_of[v.name],
+                                        options.seeds.smooth)
     for n in list(masks):
         if not masks[n].any():
             dropped[n] = "empty mask"

@@ -1,8 +1,8 @@
 """Cross-frame consistency of masks: their visual hull on a voxel grid, reprojected.
 
 A voxel stays when at most ``tolerance`` of the views that see it (its centre inside the
-frame) have it outside their mask, so one wrong mask does not carve the object away in all the
-others. The hull's projection into a frame (voxel centres splatted with the voxel's projected
+frame) have it outside their mask, and more have it inside, so one wrong mask does not carve
+the object away in all the others (and a voxel only a few views see needs their masks). The hull's projection into a frame (voxel centres splatted with the voxel's projected
 size, then closed) against that frame's mask gives the frame's IoU: a mask that disagrees with
 what the other views agree on is wrong (or the object moved)."""
 
@@ -35,7 +35,7 @@ def carve(views: list[View], masks: dict[str, np.ndarray], lo: np.ndarray, hi: n
     axes = [np.arange(lo[k] + voxel / 2, hi[k], voxel) for k in range(3)]
     centres = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
     out = np.zeros(len(centres), np.int32)
-    seen = np.zeros(len(centres), np.int32)
+    into = np.zeros(len(centres), np.int32)
     for v in views:
         if v.name not in masks:
             continue
@@ -45,9 +45,9 @@ def carve(views: list[View], masks: dict[str, np.ndarray], lo: np.ndarray, hi: n
         ok = (depth > 0) & (x >= 0) & (y >= 0) & (x < m.shape[1]) & (y < m.shape[0])
         hit = np.zeros(len(centres), bool)
         hit[ok] = m[y[ok], x[ok]]
-        seen += ok
+        into += hit
         out += ok & ~hit
-    keep = (seen > 0) & (out <= tolerance)
+    keep = (out <= tolerance) & (into > out)
     return Hull(centres[keep], voxel)
 
 

@@ -148,14 +148,14 @@ def object_region(views: list[View], points: np.ndarray, box=None, where=None) -
         background = ~np.all((local >= lo - 0.1 * (hi - lo)) & (local <= hi + 0.1 * (hi - lo)), axis=1)
     else:
         near = dist < 3 * reach
-        threshold = 0.015  # of the orbit radius
+        threshold = 0.006  # of the orbit radius: SfM points on a textured ground lie this close to its plane
         plane, on_plane = ground_plane(local[near], np.array([0, 0, 1.0]), np.zeros(3), threshold)
         ground = np.zeros(len(points), bool)
         height = np.full(len(points), np.inf)
         if plane is not None:
             ground[np.flatnonzero(near)[on_plane]] = True
             height = local @ plane[:3] + plane[3]
-        inside = (dist < reach) & (height > 3 * threshold)
+        inside = (dist < reach) & (height > 2 * threshold)
         inside &= _not_stray(local, inside)
         background = (dist > 1.5 * reach) | ground
         if plane is not None:  # back to the SfM world

@@ -26,6 +26,7 @@ class SeedOptions:
     border: int = 3  # sure background strip along the frame's edges (pixels)
     feature_radius: int = 2  # disk of sure labels around an observed feature (pixels)
     iterations: int = 5  # GrabCut iterations
+    smooth: float = 1.0  # Gaussian blur (pixels) of the frame GrabCut models colours on
 
 
 def hull_polygon(uv: np.ndarray) -> np.ndarray | None:
@@ -78,9 +79,10 @@ def mask_seeds(shape: tuple[int, int], mask: np.ndarray, band: int) -> np.ndarra
     return labels
 
 
-def grabcut(rgb: np.ndarray, labels: np.ndarray, iterations: int, keep_uv: np.ndarray | None = None) -> np.ndarray:
-    """The foreground (float32 0/1) GrabCut finds from ``labels``; the pieces holding a point of
-    ``keep_uv`` (else the largest)."""
+def grabcut(rgb: np.ndarray, labels: np.ndarray, iterations: int, keep_uv: np.ndarray | None = None,
+            smooth: float = 0.0) -> np.ndarray:
+    """The foreground (float32 0/1) GrabCut finds from ``labels`` on ``rgb`` blurred by a
+    Gaussian of ``smooth`` pixels; the pieces holding a point of ``keep_uv`` (else the largest)."""
     import cv2  # see the note at the top
 
     labels = labels.copy()
@@ -95,6 +97,8 @@ def grabcut(rgb: np.ndarray, labels: np.ndarray, iterations: int, keep_uv: np.nd
     crop = np.ascontiguousarray(labels[y0:y1, x0:x1])
     bgd, fgd = np.zeros((1, 65), np.float64), np.zeros((1, 65), np.float64)
     bgr = np.ascontiguousarray(np.asarray(rgb, np.uint8)[y0:y1, x0:x1, ::-1])
+    if smooth > 0:  # sensor (or render) noise widens both colour models until they overlap
+        bgr = cv2.GaussianBlur(bgr, (0, 0), smooth)
     try:
         cv2.grabCut(bgr, crop, None, bgd, fgd, iterations, cv2.GC_INIT_WITH_MASK)
     except cv2.error:  # one class has too few pixels to model: keep the seeds
