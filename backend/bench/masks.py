@@ -11,6 +11,7 @@ pixels above half). Dropped frames count in their own column. Goal: mean IoU >= 
 from __future__ import annotations
 
 import json
+import shutil
 import time
 from pathlib import Path
 
@@ -69,7 +70,8 @@ def measure(folder: Path, work: Path, options: MaskOptions | None = None) -> dic
     from PIL import Image
 
     source = open_source(folder / "orbit.mp4")
-    (work / "frames").mkdir(parents=True, exist_ok=True)
+    shutil.rmtree(work, ignore_errors=True)  # a COLMAP database left there would be added to
+    (work / "frames").mkdir(parents=True)
     frames, paths = {}, []
     for i, rgb in source.frames():
         name = f"{i:04d}"

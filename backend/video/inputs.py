@@ -31,6 +31,7 @@ from ..geometry.mesh import Mesh, save_mesh
 from ..lighting.align import align_lighting
 from ..masks import MaskOptions, make_masks, parse_object_box
 from ..masks.region import NO_OBJECT_FIX
+from ..masks.segment import OnnxSegmenter
 from .frames import Source, check_masks, open_source, pick_frames
 from .scene_frame import scene_frame
 from .sfm import SfmOptions, SfmResult, solve
@@ -134,8 +135,6 @@ def automatic_mask_options(object_box: str | None, mask_model: str | None) -> Ma
     if mask_model is not None:
         model = Path(mask_model)
         require(model.is_file(), model, "mask model not found", "give an ONNX file, or leave --mask-model out")
-        from ..masks.segment import OnnxSegmenter  # here: reads the network, only to check it
-
         OnnxSegmenter(model, options.model_size)
         options.model = model
     return options
