@@ -117,11 +117,12 @@ def cluster_labels(images: list[np.ndarray], object_masks: list[np.ndarray], k: 
 
 
 def choose_material_count(images: list[np.ndarray], object_masks: list[np.ndarray] | None, most: int = 4,
-                          gain: float = 0.5, seed: int = 0, max_pixels: int = 50_000) -> int:
+                          gain: float = 0.25, seed: int = 0, max_pixels: int = 50_000) -> int:
     """How many materials the frames' object colours show: the smallest k after which one more
-    cluster no longer takes ``gain`` (half) of the remaining within-cluster variance away (k-means
-    on :func:`cluster_labels`' features). A textured single material spreads its colours without
-    separate clusters and stays at one; two distinct paints halve the variance at k = 2."""
+    cluster no longer leaves less than ``gain`` of the within-cluster variance (k-means on
+    :func:`cluster_labels`' features). One textured material spreads its colours in one lump
+    (two means leave 36 % of a Gaussian's variance) and stays at one; two distinct paints leave
+    far less at k = 2."""
     if object_masks is None:
         return 1
     feats = np.concatenate([_colour_features(np.asarray(img, np.float64)[m >= OBJECT_THRESHOLD])
