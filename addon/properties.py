@@ -62,6 +62,13 @@ DEVICES = (
 )
 
 
+MASK_MODES = [
+    ("AUTOMATIC", "Automatic", "The imported masks when there are any, else masks made from the solved cameras "
+                               "(the points the cameras circle, segmented per frame and checked against each other)"),
+    ("IMPORTED", "Imported", "Only the imported masks (Import Masks): Solve Cameras waits for them"),
+]
+
+
 class SFT_SceneSettings(bpy.types.PropertyGroup):
     capture_dir: StringProperty(
         name="Capture", subtype="DIR_PATH", default="",
@@ -83,6 +90,8 @@ class SFT_SceneSettings(bpy.types.PropertyGroup):
                     "the albedo's scale. Off: a brightness factor is fitted with the albedo. A known median albedo "
                     "is set with Extra Arguments: --known-albedo R,G,B",
         update=_plan_stale)
+    masks_mode: EnumProperty(name="Masks", items=MASK_MODES, default="AUTOMATIC",
+                             description="Where Solve Cameras takes the object masks from")
     preset: EnumProperty(name="Quality", items=QUALITY, default="auto",
                          description="Reconstruction quality preset")
     plan_text: StringProperty(name="Plan", default="",

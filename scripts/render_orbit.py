@@ -18,7 +18,8 @@ frames. ``--check-background`` renders one opaque frame and reports how far the 
 is from it. Writes to DIR:
 
 - ``orbit.mp4``: the frames as H.264 (yuv420p), ``--fps``
-- ``masks/0000.png ...``: one 8-bit mask per video frame (index-paired)
+- ``masks/0000.png ...``: one 8-bit mask per video frame (index-paired): the object's alone
+  with ``--ground`` (a textured plane it stands on, in the frames only)
 - ``truth.ply``: the object in Blender's world frame
 - ``truth.json``: environment (path, rotation, strength), exposure, camera intrinsics,
   per-frame camera-to-world matrices (Blender axes), render settings and seconds"""
@@ -65,6 +66,8 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
     p.add_argument("--crf", type=int, default=18, help="H.264 quality (lower is better)")
     p.add_argument("--threads", type=int, default=0, help="Cycles threads (0 = all cores)")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--ground", action="store_true",
+                   help="stand the object on a textured ground plane (in the frames, not in the masks)")
     p.add_argument("--check-background", action="store_true",
                    help="also render frame 0 with an opaque film and print how far the composite is from it")
     return p.parse_args(argv)
@@ -130,6 +133,56 @@ def add_object(mesh: Mesh, seed: int) -> bpy.types.Object:
     bsdf.inputs["Roughness"].default_value = 0.5
     ob.data.materials.append(mat)
     return ob
+
+
+def add_ground(z: float, size: float = 8.0) -> bpy.types.Object:
+    """A square plane at height ``z`` with a procedural albedo (browns by a fine noise, darker
+    towards Voronoi cell edges: texture for SIFT, like a wooden table)."""
+    data = bpy.data.meshes.new("ground")
+    h = size / 2
+    data.from_pydata([(-h, -h, z), (h, -h, z), (h, h, z), (-h, h, z)], [], [(0, 1, 2, 3)])
+    data.update()
+    ob = bpy.data.objects.new("ground", data)
+    bpy.context.scene.collection.objects.link(ob)
+    mat = bpy.data.materials.new("ground")
+    if bpy.app.version < (5, 0, 0):
+        mat.use_nodes = True
+    nodes, links = mat.node_tree.nodes, mat.node_tree.links
+    bsdf = next(n for n in nodes if n.type == "BSDF_PRINCIPLED")
+    coords = nodes.new("ShaderNodeTexCoord")
+    noise, cells = nodes.new("ShaderNodeTexNoise"), nodes.new("ShaderNodeTexVoronoi")
+    noise.inputs["Scale"].default_value = 24.0
+    noise.inputs["Detail"].default_value = 6.0
+    cells.inputs["Scale"].default_value = 9.0
+    for node in (noise, cells):
+        links.new(coords.outputs["Object"], node.inputs["Vector"])
+    ramp = nodes.new("ShaderNodeValToRGB")  # wood-like browns by the fine noise
+    links.new(noise.outputs["Fac"], ramp.inputs["Fac"])
+    (lo, hi) = ramp.color_ramp.elements
+    lo.position, lo.color = 0.3, (0.08, 0.045, 0.02, 1.0)
+    hi.position, hi.color = 0.7, (0.45, 0.3, 0.16, 1.0)
+    mix = nodes.new("ShaderNodeMix")  # darkened towards the cells' edges
+    mix.data_type = "RGBA"
+    mix.blend_type = "MULTIPLY"
+    mix.inputs["Factor"].default_value = 0.6
+    links.new(ramp.outputs["Color"], mix.inputs["A"])
+    links.new(cells.outputs["Distance"], mix.inputs["B"])
+    links.new(mix.outputs["Result"], bsdf.inputs["Base Color"])
+    bsdf.inputs["Roughness"].default_value = 0.8
+    ob.data.materials.append(mat)
+    return ob
+
+
+def object_alpha(scene, ground: bpy.types.Object, path: Path, samples: int = 4) -> np.ndarray:
+    """The object's own coverage: the frame rendered again (``samples`` per pixel, no
+    denoising) with the ground hidden from the camera (it still shadows and reflects)."""
+    keep = scene.cycles.samples, scene.cycles.use_denoising, scene.render.filepath
+    ground.visible_camera = False
+    scene.cycles.samples, scene.cycles.use_denoising, scene.render.filepath = samples, False, str(path)
+    bpy.ops.render.render(write_still=True)
+    ground.visible_camera = True
+    scene.cycles.samples, scene.cycles.use_denoising, scene.render.filepath = keep
+    return read_rgba(path)[1]
 
 
 def set_world(env: Path, rotation_z_deg: float, strength: float) -> None:
@@ -296,6 +349,7 @@ def main(argv: list[str]) -> int:
     bpy.ops.wm.read_factory_settings(use_empty=True)
     mesh = object_mesh(args.mesh, args.up)
     add_object(mesh, args.seed)
+    ground = add_ground(float(mesh.vertices[:, 2].min())) if args.ground else None
     set_world(args.env, args.env_rotation, args.env_strength)
     cam = configure(args, width, height)
     poses = orbit(args.frames, args.distance, args.elevation, args.jitter, args.seed)
@@ -324,7 +378,9 @@ def main(argv: list[str]) -> int:
                 exposure = 0.8 / max(float(np.percentile(lum, 97)), 1e-6)
             behind = background(env, args.env_rotation, args.env_strength, pose, fx, width, height)
             frame = srgb8(exposure * (rgb + (1 - alpha[..., None]) * behind))
-            mask = np.round(np.clip(alpha, 0, 1) * 255).astype(np.uint8)
+            # the film's alpha covers the ground too: the mask is the object's own coverage
+            coverage = alpha if ground is None else object_alpha(scene, ground, exr_dir / f"{i:04d}_mask.exr")
+            mask = np.round(np.clip(coverage, 0, 1) * 255).astype(np.uint8)
             Image.fromarray(mask).save(out / "masks" / f"{i:04d}.png")
             for packet in stream.encode(av.VideoFrame.from_ndarray(frame, format="rgb24")):
                 container.mux(packet)

@@ -239,6 +239,11 @@ def cameras_summary(done: dict) -> str:
             line += f" (masks left out: {', '.join(map(str, silhouettes['dropped']))})"
     elif silhouettes.get("reason"):
         line += f", silhouettes not used: {silhouettes['reason']}"
+    masks = done.get("masks") or {}
+    if masks.get("kept") is not None:
+        line += f"; {masks['kept']} masks made automatically"
+        if masks.get("dropped"):
+            line += f" ({masks['dropped']} frames dropped: their masks disagree or the object leaves the frame)"
     return line
 
 

@@ -101,6 +101,10 @@ class SFT_OT_import_cameras(bpy.types.Operator, ImportHelper, JobModal):
         return {"FINISHED"}
 
 
+def _imported_masks(capture) -> bool:
+    return (capture / fr.MASKS).is_dir() and any((capture / fr.MASKS).glob("*.png"))
+
+
 class SFT_OT_solve_cameras(JobModal, bpy.types.Operator):
     """Solve camera poses from the imported video with the backend's structure from motion
     (python -m backend capture-from-video), then import them"""
@@ -119,8 +123,8 @@ class SFT_OT_solve_cameras(JobModal, bpy.types.Operator):
         if not facts.has_manifest:
             cls.poll_message_set("import a video first (Import Video)")
             return False
-        if not facts.has_masks_dir:
-            cls.poll_message_set("import the object masks first (Import Masks)")
+        if context.scene.sft.masks_mode == "IMPORTED" and not facts.masks:
+            cls.poll_message_set("import the object masks first (Import Masks), or set Masks to Automatic")
             return False
         return has_backend(cls, context)
 
@@ -132,12 +136,14 @@ class SFT_OT_solve_cameras(JobModal, bpy.types.Operator):
                 "update the add-on, or solve the cameras elsewhere and use Import Cameras")
         images, masks = capture / fr.IMAGES, capture / fr.MASKS
         require(images.is_dir() and any(images.glob("*.png")), images, "no frames", "import the video again")
-        require(masks.is_dir() and any(masks.glob("*.png")), masks, "no masks",
-                "import the object masks (Import Masks) before solving")
+        automatic = context.scene.sft.masks_mode == "AUTOMATIC" and not _imported_masks(capture)
+        require(automatic or _imported_masks(capture), masks, "no masks",
+                "import the object masks (Import Masks) before solving, or set Masks to Automatic")
         self.out = capture / "solved"
-        # the kept frames with their masks, one each and paired by name order
-        args = ["capture-from-video", "--images", str(images), "--masks", str(masks), "--out", str(self.out),
-                "--overwrite"]
+        # the kept frames with their masks, one each and paired by name order; none: made from the SfM result
+        args = ["capture-from-video", "--images", str(images), "--out", str(self.out), "--overwrite"]
+        if not automatic:
+            args += ["--masks", str(masks)]
         if (capture / fr.MATERIALS).is_dir() and any((capture / fr.MATERIALS).glob("*.png")):
             args += ["--materials", str(capture / fr.MATERIALS)]  # per-material masks become material labels
         sft = context.scene.sft

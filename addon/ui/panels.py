@@ -97,6 +97,7 @@ class SFT_PT_cameras(_Panel, bpy.types.Panel):
         col = layout.column(align=True)
         col.enabled = not running
         col.operator("sft.import_cameras", icon="CAMERA_DATA")
+        col.prop(context.scene.sft, "masks_mode")
         col.operator("sft.solve_cameras", icon="TRACKING")
         collection = bpy.data.collections.get(scene_cameras.COLLECTION)
         if collection and collection.objects:

@@ -1,11 +1,15 @@
-"""``capture-from-video VIDEO --masks MASKS [--env HDR] --out CAPTURE``: a capture from a phone video.
+"""``capture-from-video VIDEO [--masks MASKS] [--env HDR] --out CAPTURE``: a capture from a phone video.
 
 Frames are picked (by stride or count, the sharpest of each stretch, blurred ones dropped),
 cameras solved by SfM (pycolmap, one shared camera with radial distortion), frames and
 masks undistorted, and the scene levelled, centred and scaled from the masks' visual hull
 (Z up, object at the origin, about 1 unit across). ``--images DIR`` takes already
 extracted frames instead of a video. Masks are a folder of images or a video with one mask
-per source frame, paired by index (files in name order). The environment map (optional) is copied and
+per source frame, paired by index (files in name order); without ``--masks`` they are made from the
+SfM result (:mod:`backend.masks`: the points the orbit circles, GrabCut per frame, the masks'
+visual hull as a check; ``--object-box`` gives the object's region, ``--mask-model`` an ONNX
+model instead of GrabCut), written into the capture's masks folder, and frames whose mask
+disagrees with the others are dropped (counted in the report). The environment map (optional) is copied and
 aligned with the frames (rotation about Z and strength, :mod:`backend.lighting`) against the
 masks' visual hull; ``--env-rotation`` gives a known rotation (the strength is still
 estimated) and ``--no-align-lighting`` keeps the given rotation (default 0) and strength 1.
@@ -19,14 +23,16 @@ from pathlib import Path
 
 from ..capture.format import FILENAME
 from ..events import Emitter
-from ..video.inputs import DEFAULT_VIDEO_FRAMES, add_lighting_arguments, check_inputs, lighting_summary, write_capture
+from ..video.inputs import (DEFAULT_VIDEO_FRAMES, add_lighting_arguments, add_mask_arguments, check_inputs,
+                            lighting_summary, write_capture)
 
 
 def add_arguments(parser):
     parser.add_argument("video", nargs="?", metavar="VIDEO", help="the video (MP4, MOV, MKV, ...)")
     parser.add_argument("--images", metavar="DIR", help="a folder of already extracted frames instead of a video")
-    parser.add_argument("--masks", required=True, metavar="MASKS",
-                        help="object masks, one per source frame: a folder of images (name order) or a video")
+    parser.add_argument("--masks", metavar="MASKS",
+                        help="object masks, one per source frame: a folder of images (name order) or a video; "
+                             "without it they are made automatically from the SfM result")
     parser.add_argument("--env", metavar="HDR",
                         help="equirectangular HDR map of the lighting (EXR or HDR), aligned to the frames; "
                              "without it the capture holds cameras only (give the map to reconstruct --env)")
@@ -43,6 +49,7 @@ def add_arguments(parser):
     parser.add_argument("--max-size", type=int, metavar="PX", help="downscale frames so the longer side is at most PX")
     parser.add_argument("--overwrite", action="store_true", help="replace CAPTURE if it exists")
     add_lighting_arguments(parser)
+    add_mask_arguments(parser)
 
 
 def run(args) -> int:
@@ -52,7 +59,7 @@ def run(args) -> int:
     written, sfm = write_capture(inputs, out, emit, overwrite=args.overwrite)
     emit("done", result=str(out / FILENAME), frames=len(written.frames), registered=sfm.registered,
          total=sfm.total, reprojection_error_px=sfm.reprojection_error_px, silhouettes=sfm.silhouettes,
-         lighting=lighting_summary(written))
+         lighting=lighting_summary(written), masks=written.provenance.get("masks_automatic"))
     return 0
 
 

@@ -81,6 +81,9 @@ def add_arguments(parser):
                              "diffuse, then specular; writes RUN/result.glb), 'constant' (one material for the "
                              "whole object, estimated) or known:ALBEDO_R,G,B:SPECULAR:ROUGHNESS. A resumed run "
                              "keeps the material it started with")
+    parser.add_argument("--materials", dest="n_materials", metavar="N|auto",
+                        help="with --material staged and no material masks: cluster the frames' colours into N "
+                             f"materials, or auto (as many as the colours show); default {d.n_materials}")
     parser.add_argument("--effects", default=d.effects,
                         help="light-transport effects: 'auto' (measured on the scene), 'all', or a list of "
                              "indirect, shadows, specular, silhouettes (prefix '-' to force one off, e.g. auto,-shadows)")

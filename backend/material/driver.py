@@ -24,7 +24,7 @@ import numpy as np
 from ..capture.model import Camera, Capture
 from ..geometry.mesh import Mesh
 from .factory import create
-from .labels import FaceLabels, face_labels, load_material_labels
+from .labels import FaceLabels, choose_material_count, face_labels, load_material_labels
 from .model import MeshColorMaterial
 from .schedule import MaterialSchedule, run_cycle
 from .stages import FitResult, FitSettings, check_specular_texture, check_views, fit_lobe
@@ -33,7 +33,9 @@ from .stages import FitResult, FitSettings, check_specular_texture, check_views,
 @dataclass
 class MaterialDriver:
     capture: Capture
-    n_materials: int = 1  # materials to find by clustering when the capture has no material masks
+    # materials to find by clustering when the capture has no material masks; "auto": as many
+    # as the colours show (choose_material_count), resolved on the first material()
+    n_materials: int | str = 1
     resolution: int = 4  # mesh-color resolution r
     settings: FitSettings = field(default_factory=FitSettings)
     schedule: MaterialSchedule = field(default_factory=MaterialSchedule)
@@ -58,6 +60,8 @@ class MaterialDriver:
                  masks: list[np.ndarray] | None) -> MeshColorMaterial:
         """A neutral grey material on ``mesh`` with per-face labels from the masks (or colours)."""
         self._images, self._masks = images, masks
+        if self.n_materials == "auto":
+            self.n_materials = 1 if self.label_images is not None else choose_material_count(images, masks)
         self.labels = face_labels(mesh, cameras, self.label_images, images, masks, self.n_materials)
         return create("staged", mesh, self.resolution, self.labels.labels, self.labels.n_materials)
 

@@ -116,6 +116,31 @@ def cluster_labels(images: list[np.ndarray], object_masks: list[np.ndarray], k: 
     return out
 
 
+def choose_material_count(images: list[np.ndarray], object_masks: list[np.ndarray] | None, most: int = 4,
+                          gain: float = 0.25, seed: int = 0, max_pixels: int = 50_000) -> int:
+    """How many materials the frames' object colours show: the smallest k after which one more
+    cluster no longer leaves less than ``gain`` of the within-cluster variance (k-means on
+    :func:`cluster_labels`' features). One textured material spreads its colours in one lump
+    (two means leave 36 % of a Gaussian's variance) and stays at one; two distinct paints leave
+    far less at k = 2."""
+    if object_masks is None:
+        return 1
+    feats = np.concatenate([_colour_features(np.asarray(img, np.float64)[m >= OBJECT_THRESHOLD])
+                            for img, m in zip(images, object_masks)])
+    if len(feats) < 10 * most:
+        return 1
+    rng = np.random.default_rng(seed)
+    sub = feats[rng.choice(len(feats), min(len(feats), max_pixels), replace=False)]
+    inertia = [float(((sub - sub.mean(0)) ** 2).sum())]
+    for k in range(2, most + 1):
+        centres, label = kmeans2(sub, k, iter=25, minit="++", missing="warn", seed=rng)
+        inertia.append(float(((sub - centres[label]) ** 2).sum()))
+    k = 1
+    while k < most and inertia[k] < gain * inertia[k - 1]:
+        k += 1
+    return k
+
+
 def _colour_features(rgb: np.ndarray) -> np.ndarray:
     s = np.maximum(rgb.sum(-1, keepdims=True), 1e-6)
     return np.concatenate([rgb[:, :2] / s, 0.15 * np.log(s / 3 + 1e-3)], 1)

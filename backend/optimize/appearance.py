@@ -144,7 +144,8 @@ class Appearance:
             raise InputError(None, str(err), "write --effects auto, all, or a list such as indirect,-shadows") from None
         driver = None
         if factory.kind_for(config.material) == "meshcolors":
-            driver = MaterialDriver(capture)  # raises InputError naming the frame of a bad mask
+            # raises InputError naming the frame of a bad mask
+            driver = MaterialDriver(capture, n_materials=getattr(config, "n_materials", 1))
         check_scale(config, driver is not None, config.lighting in ESTIMATED or config.lighting == "flash",
                     capture.environment is not None)
         return measure, overrides, driver

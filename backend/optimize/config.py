@@ -15,6 +15,9 @@ class ReconstructConfig:
     # what to start from and what to fit
     init: str | None = None  # carve | sphere | box | spheres | points | FILE; None = by the capture
     material: str = "auto"  # auto (constant, estimated), staged (mesh colors schedule) or known:R,G,B:SPEC:ROUGH
+    # staged materials of a capture without material masks: the frames' colours clustered into
+    # this many (1: one material), or "auto" (backend.material.labels.choose_material_count)
+    n_materials: int | str = 1
     effects: str = "auto"  # light-transport effects: auto (measured), all, or a list (see render/effects.py)
     # captured (the capture's lights) or estimate (an environment map fitted with the material,
     # backend.lighting.estimated_map); the command resolves its default (backend.lighting.modes)

@@ -33,7 +33,7 @@ from .time_plan import capture_plan, level_limit, make_plan
 OVERRIDES = ("init", "material", "effects", "initial_faces", "iterations", "seed", "max_size", "coarse_size", "views_per_step",
              "integrator", "max_depth", "spp", "remesh", "max_levels", "level_iterations", "step", "lambda_",
              "face_growth", "track_metrics", "track_accuracy", "held_out_every", "texture_stage", "texture_size",
-             "exposure", "map_calibrated")
+             "exposure", "map_calibrated", "n_materials")
 VIDEO_SUFFIXES = {".mp4", ".mov", ".m4v", ".avi", ".mkv", ".webm", ".mts", ".mpg", ".mpeg", ".ogv"}
 DEFAULT_MATERIAL = "staged"
 MATERIAL_ALIASES = {"constant": "auto", "full": "staged"}
@@ -68,9 +68,15 @@ def config_from_args(args) -> ReconstructConfig:
     growth = args.face_growth
     require(growth is None or (math.isfinite(growth) and growth > 1), None,
             f"--face-growth must be above 1 (got {growth})", "give e.g. --face-growth 1.5")
+    materials = getattr(args, "n_materials", None)
+    materials = None if materials is None else str(materials)
+    require(materials is None or materials == "auto" or (materials.isdigit() and 1 <= int(materials) <= 16), None,
+            f"--materials {materials} is not a count from 1 to 16 nor auto", "give e.g. --materials 3 or --materials auto")
     values = dict(PRESETS[choose_preset(args)])
     values.update(settings_from_environment())
-    values.update({k: getattr(args, k) for k in OVERRIDES if getattr(args, k) not in (None, False)})
+    values.update({k: getattr(args, k) for k in OVERRIDES if getattr(args, k, None) not in (None, False)})
+    if materials is not None:
+        values["n_materials"] = materials if materials == "auto" else int(materials)
     values["material"] = MATERIAL_ALIASES.get(values.get("material"), values.get("material")) or DEFAULT_MATERIAL
     if args.time_budget is not None:
         values["time_budget_s"] = 60.0 * args.time_budget

@@ -1,6 +1,9 @@
 """Library of ``capture-from-video`` (and ``reconstruct VIDEO``): check the inputs, then write
 the capture (frames, SfM, scene frame, undistortion, lighting alignment) atomically.
 
+Without masks, SfM runs on the frames alone, the masks are made from its result
+(:mod:`backend.masks`), and the silhouette refinement of the cameras follows with them.
+
 The environment map is optional: without one the capture holds cameras only, and
 the lighting is given later (``reconstruct --env``)."""
 
@@ -21,14 +24,18 @@ from ..capture.load import load_capture
 from ..capture.model import Capture, Environment, Frame
 from ..capture.undistort import needs_resampling, pinhole, resample
 from ..capture.validate import validate_environment
-from ..errors import require
+from ..errors import InputError, require
 from ..geometry.init.carve import carve
 from ..geometry.init.hull import HullConfig
 from ..geometry.mesh import Mesh, save_mesh
 from ..lighting.align import align_lighting
+from ..masks import MaskOptions, make_masks, parse_object_box
+from ..masks.region import NO_OBJECT_FIX
+from ..masks.segment import OnnxSegmenter
 from .frames import Source, check_masks, open_source, pick_frames
 from .scene_frame import scene_frame
 from .sfm import SfmOptions, SfmResult, solve
+from .silhouettes import refine as refine_with_silhouettes
 
 DEFAULT_VIDEO_FRAMES = 60
 HULL_FACES = 3000  # the coarse mesh the lighting is aligned against
@@ -49,7 +56,7 @@ class VideoInputs:
     path: Path
     is_folder: bool
     frames: Source
-    masks: Source
+    masks: Source | None  # None: made automatically (backend.masks)
     environment: Environment | None
     stride: int | None = None
     count: int | None = None
@@ -58,12 +65,14 @@ class VideoInputs:
     align_lighting: bool = True
     env_rotation: float | None = None
     materials: Path | None = None  # label images named like the frames (integer labels, 0 = unassigned)
+    mask_options: MaskOptions | None = None  # how automatic masks are made (masks is None)
 
 
 def check_inputs(args, is_folder: bool | None = None) -> VideoInputs:
     """Every check that needs no decoding: options, the sources, mask count and size, the map.
 
-    ``args`` needs ``masks`` and ``env``; the video is ``args.video`` or ``args.images``
+    ``args`` needs ``masks`` (None: automatic masks, shaped by ``object_box`` and
+    ``mask_model`` when present) and ``env``; the video is ``args.video`` or ``args.images``
     (capture-from-video), or ``args.capture`` (reconstruct: a folder is taken as frames)."""
     video, images = getattr(args, "video", None), getattr(args, "images", None)
     if hasattr(args, "capture"):
@@ -88,8 +97,12 @@ def check_inputs(args, is_folder: bool | None = None) -> VideoInputs:
     require(rotation is None or np.isfinite(rotation), None, "--env-rotation is not a finite number",
             "give the rotation in degrees")
     frames = open_source(path)
-    masks = open_source(args.masks)
-    check_masks(frames, masks)
+    masks, mask_options = None, None
+    if args.masks is not None:
+        masks = open_source(args.masks)
+        check_masks(frames, masks)
+    else:
+        mask_options = automatic_mask_options(getattr(args, "object_box", None), getattr(args, "mask_model", None))
     environment = None
     if args.env is not None:
         env_path = Path(args.env)
@@ -104,7 +117,27 @@ def check_inputs(args, is_folder: bool | None = None) -> VideoInputs:
         require(materials.is_dir(), materials, "--materials is not a folder",
                 "give the folder of material label images, named like the frames")
     return VideoInputs(path, is_folder, frames, masks, environment, stride, frames_n, blur_ratio, max_size,
-                       getattr(args, "align_lighting", True), rotation, materials)
+                       getattr(args, "align_lighting", True), rotation, materials, mask_options)
+
+
+def add_mask_arguments(parser):
+    parser.add_argument("--object-box", metavar="X0,Y0,Z0,X1,Y1,Z1",
+                        help="without --masks: the object's box in the orbit frame (origin at the point the cameras "
+                             "circle, Z up, units of the orbit radius) instead of the points near that point")
+    parser.add_argument("--mask-model", metavar="FILE.onnx",
+                        help="without --masks: segment each frame with this ONNX salient-object model (OpenCV dnn) "
+                             "instead of GrabCut; the masks are checked against each other the same way")
+
+
+def automatic_mask_options(object_box: str | None, mask_model: str | None) -> MaskOptions:
+    """The options of automatic masks, checked (the model is read once here: a bad file fails now)."""
+    options = MaskOptions(object_box=parse_object_box(object_box))
+    if mask_model is not None:
+        model = Path(mask_model)
+        require(model.is_file(), model, "mask model not found", "give an ONNX file, or leave --mask-model out")
+        OnnxSegmenter(model, options.model_size)
+        options.model = model
+    return options
 
 
 def write_capture(inputs: VideoInputs, out: Path, emit, overwrite: bool = False) -> tuple[Capture, SfmResult]:
@@ -114,19 +147,26 @@ def write_capture(inputs: VideoInputs, out: Path, emit, overwrite: bool = False)
         work = tmp / ".work"
         emit("stage", stage="frames", source=str(path), frames=frames.count)
         selection = pick_frames(frames, inputs.stride, inputs.count, inputs.blur_ratio)
-        require(len(selection.sharpness) == masks.count, masks.path,
-                f"{masks.count} masks for {len(selection.sharpness)} decoded frames of {path.name}",
+        require(masks is None or len(selection.sharpness) == masks.count, masks and masks.path,
+                f"{masks and masks.count} masks for {len(selection.sharpness)} decoded frames of {path.name}",
                 "give one mask per source frame")
         names = _write_frames(frames, masks, selection.indices, work, inputs.is_folder)
         emit("frames", selected=selection.indices, blurred=selection.rejected)
-        sfm = solve([work / "frames" / f"{n}.png" for n in names], work / "sfm", SfmOptions(), emit, source=path,
-                    masks=[work / "masks" / f"{n}.png" for n in names])
+        images = [work / "frames" / f"{n}.png" for n in names]
+        if masks is not None:
+            sfm = solve(images, work / "sfm", SfmOptions(), emit, source=path,
+                        masks=[work / "masks" / f"{n}.png" for n in names])
+            mask_report = None
+        else:
+            sfm, mask_report = _solve_with_automatic_masks(images, work, inputs.mask_options, emit, path)
         emit("sfm", registered=sfm.registered, total=sfm.total,
              reprojection_error_px=sfm.reprojection_error_px, method=sfm.method, silhouettes=sfm.silhouettes)
-        capture = _scene_capture(sfm, names, selection.indices, work, inputs.environment, masks.path,
-                                 inputs.materials)
+        capture = _scene_capture(sfm, names, selection.indices, work, inputs.environment,
+                                 masks.path if masks is not None else work / "masks", inputs.materials)
+        if mask_report is not None:
+            capture.provenance["masks_automatic"] = mask_report.summary()
         capture.provenance.update(source="images" if inputs.is_folder else "video", path=str(path.resolve()),
-                                  masks=str(Path(masks.path).resolve()),
+                                  masks=str(Path(masks.path).resolve()) if masks is not None else "automatic",
                                   frames={"source_frames": frames.count, "stride": inputs.stride,
                                           "count": inputs.count, "blur_ratio": inputs.blur_ratio,
                                           "selected": selection.indices, "blurred": selection.rejected})
@@ -137,6 +177,32 @@ def write_capture(inputs: VideoInputs, out: Path, emit, overwrite: bool = False)
         save_capture(written)
         load_capture(tmp)  # what we wrote must read back and validate
     return written, sfm
+
+
+def _solve_with_automatic_masks(images: list[Path], work: Path, options: MaskOptions, emit, source: Path):
+    """SfM on the frames alone, masks from its result (written beside the frames as PNG), then
+    the silhouette refinement with them. Frames without a consistent mask lose their camera."""
+    try:
+        sfm = solve(images, work / "sfm", SfmOptions(), emit, source=source)
+    except InputError as err:
+        raise InputError(err.path, f"no object can be isolated: {err.problem}", NO_OBJECT_FIX) from None
+    from PIL import Image
+
+    frames = {}
+    for p in images:
+        if p.stem in sfm.poses:
+            with Image.open(p) as im:
+                frames[p.stem] = np.asarray(im.convert("RGB"))
+    report = make_masks(frames, sfm, options, emit, where=source)
+    sfm.seconds["masks"] = report.seconds
+    for name in sfm.names:
+        if name in report.masks:
+            write_mask(work / "masks" / f"{name}.png", report.masks[name])
+        else:
+            sfm.poses.pop(name, None)
+    emit("stage", stage="silhouettes")
+    sfm, sfm.silhouettes = refine_with_silhouettes(sfm, report.masks, SfmOptions().silhouettes)
+    return sfm, report
 
 
 def align_capture_lighting(capture: Capture, rotation_z_deg: float | None, emit) -> None:
@@ -172,7 +238,8 @@ def _write_frames(frames: Source, masks: Source, indices: list[int], work: Path,
     (work / "frames").mkdir(parents=True, exist_ok=True)
     for i, rgb in frames.frames(indices):
         Image.fromarray(rgb).save(work / "frames" / f"{by_index[i]}.png")
-    for i, mask in masks.masks(indices):
+    (work / "masks").mkdir(parents=True, exist_ok=True)
+    for i, mask in (masks.masks(indices) if masks is not None else ()):
         write_mask(work / "masks" / f"{by_index[i]}.png", mask)
     return names
 

@@ -103,17 +103,22 @@ def test_import_cameras_other_layouts_through_backend(context, env_capture, tmp_
 
 def test_solve_cameras_is_greyed_out_until_frames_and_masks_exist(context, addon, tmp_path):
     """poll() says what is missing (the button's tooltip); start() checks the files. poll()
-    reads the cached view of the folder, refreshed here as the importers refresh it."""
+    reads the cached view of the folder, refreshed here as the importers refresh it. With
+    Masks = Imported it waits for imported masks; Automatic (the default) needs none."""
     expect_error(bpy.ops.sft.solve_cameras, "poll()", "import a video first (Import Video)")
     context.scene.sft.capture_dir = str(tmp_path)
     expect_error(bpy.ops.sft.solve_cameras, "import a video first (Import Video)")
     (tmp_path / "frames.json").write_text(json.dumps({"video": "v.mp4", "frames": [{"name": "0000"}]}))
     addon.capture_state.refresh(context.scene)
-    expect_error(bpy.ops.sft.solve_cameras, "import the object masks first (Import Masks)")
+    assert context.scene.sft.masks_mode == "AUTOMATIC"
+    expect_error(bpy.ops.sft.solve_cameras, "images: no frames", "import the video again")
+    context.scene.sft.masks_mode = "IMPORTED"
+    expect_error(bpy.ops.sft.solve_cameras, "import the object masks first (Import Masks), or set Masks to Automatic")
     (tmp_path / "masks").mkdir()
+    (tmp_path / "masks" / "0000.png").write_bytes(b"")
     addon.capture_state.refresh(context.scene)
     expect_error(bpy.ops.sft.solve_cameras, "images: no frames", "import the video again")
-
+    context.scene.sft.masks_mode = "AUTOMATIC"
 
 def test_reconstruct_refuses_bad_input(context, addon, tmp_path):
     expect_error(bpy.ops.sft.reconstruct, "poll()", "import a video and solve its cameras, or import cameras")

@@ -1,0 +1,160 @@
+"""The automatic masks of a set of frames with SfM cameras (the package docstring says how and why)."""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import InputError, require
+from .cameras import View, views_of
+from .consistency import carve, iou, project_hull
+from .region import NO_OBJECT_FIX, Region, object_region
+from .segment import OnnxSegmenter, SeedOptions, grabcut, hull_polygon, mask_seeds, region_seeds
+
+
+@dataclass
+class MaskOptions:
+    object_box: tuple[float, ...] | None = None  # orbit frame (x0, y0, z0, x1, y1, z1); None: near the focus
+    model: Path | None = None  # an ONNX segmentation model instead of GrabCut
+    model_size: int = 320  # the model's square input side
+    seeds: SeedOptions = field(default_factory=SeedOptions)
+    min_iou: float = 0.8  # a mask agreeing less with the others' visual hull drops its frame
+    grid: int = 80  # voxels along the hull box's longer side
+    tolerance_share: float = 0.1  # views that may disagree with a kept voxel (share, at least one)
+    edge: float = 0.01  # a region (0.5..99.5 percentiles of its points) this near the border is cut off
+    rounds: int = 2  # GrabCut rounds: the region's seeds, then the visual hull's projection
+    min_frames: int = 3
+
+
+@dataclass
+class MaskReport:
+    masks: dict[str, np.ndarray]  # kept frame -> mask (float32 0/1, frame pixels)
+    dropped: dict[str, str]  # frame -> why (cut by the border, disagrees with the hull, empty)
+    iou: dict[str, float]  # each segmented frame's IoU with the hull of all masks
+    region: dict
+    method: str
+    seconds: float = 0.0
+
+    def summary(self) -> dict:
+        values = list(self.iou.values())
+        return {"method": self.method, "kept": len(self.masks), "dropped": len(self.dropped),
+                "dropped_frames": self.dropped, "mean_iou_with_hull": round(float(np.mean(values)), 4) if values else None,
+                "iou_with_hull": {k: round(v, 4) for k, v in self.iou.items()}, "region": self.region,
+                "seconds": round(self.seconds, 2)}
+
+
+def parse_object_box(text: str | None) -> tuple[float, ...] | None:
+    """``X0,Y0,Z0,X1,Y1,Z1`` (orbit frame) as six floats with X0 < X1 etc.; InputError else."""
+    if text is None:
+        return None
+    try:
+        values = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        values = ()
+    require(len(values) == 6 and all(np.isfinite(values)), None, f"--object-box {text} is not six numbers",
+            "write X0,Y0,Z0,X1,Y1,Z1, e.g. -0.3,-0.3,-0.3,0.3,0.3,0.3")
+    require(all(values[k] < values[k + 3] for k in range(3)), None,
+            f"--object-box {text} is empty (each lower corner must be below the upper)",
+            "write X0,Y0,Z0,X1,Y1,Z1 with X0 < X1, Y0 < Y1 and Z0 < Z1")
+    return values
+
+
+def _features(sfm, names: list[str]) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """Per frame, the observed features' pixels and point indices."""
+    obs = np.asarray(sfm.observations).reshape(-1, 4)
+    out = {}
+    for k, n in enumerate(sfm.names):
+        if n in names:
+            rows = obs[obs[:, 1] == k]
+            out[n] = (rows[:, 2:4], rows[:, 0].astype(np.int64))
+    return out
+
+
+def make_masks(frames: dict[str, np.ndarray], sfm, options: MaskOptions | None = None, emit=None,
+               where=None) -> MaskReport:
+    """Masks of the registered ``frames`` (name -> RGB uint8) of ``sfm`` (an SfmResult). Raises
+    InputError (naming ``where``) when no object can be isolated or too few frames keep a mask."""
+    options = options or MaskOptions()
+    emit = emit or (lambda *a, **k: None)
+    start = time.perf_counter()
+    views = [v for v in views_of(sfm) if v.name in frames]
+    require(len(views) >= options.min_frames, where,
+            f"no object can be isolated: {len(views)} frames with cameras", NO_OBJECT_FIX)
+    region = object_region(views, sfm.points, options.object_box, where)
+    emit("stage", stage="masks", frames=len(views), **region.summary())
+    segmenter = OnnxSegmenter(options.model, options.model_size) if options.model is not None else None
+    features = _features(sfm, [v.name for v in views])
+    points = np.asarray(sfm.points, np.float64).reshape(-1, 3)
+    obj = points[region.inside]
+    masks, dropped, fg_of, bg_of = {}, {}, {}, {}
+    for v in views:
+        uv, _ = v.project(obj)
+        hull = hull_polygon(uv)
+        if hull is None:
+            dropped[v.name] = "no object point in front of the camera"
+            continue
+        inside = (uv[:, 0] > -v.width) & (uv[:, 0] < 2 * v.width) & (uv[:, 1] > -v.height) & (uv[:, 1] < 2 * v.height)
+        lo, hi = np.percentile(uv[inside], [0.5, 99.5], axis=0) if inside.sum() >= 3 else (hull.min(0), hull.max(0))
+        edge = options.edge * max(v.width, v.height)
+        if lo[0] < edge or lo[1] < edge or hi[0] > v.width - edge or hi[1] > v.height - edge:
+            dropped[v.name] = "the object's region leaves the frame"
+            continue
+        fuv, fid = features.get(v.name, (np.zeros((0, 2)), np.zeros(0, np.int64)))
+        fg_of[v.name], bg_of[v.name] = fuv[region.inside[fid]], fuv[region.background[fid]]
+        if segmenter is not None:
+            masks[v.name] = segmenter(frames[v.name])
+        else:
+            labels = region_seeds((v.height, v.width), hull, fg_of[v.name], bg_of[v.name], options.seeds)
+            masks[v.name] = grabcut(frames[v.name], labels, options.seeds.iterations, fg_of[v.name],
+                                        options.seeds.smooth)
+    rounds = 1 if segmenter is not None else options.rounds
+    scores = {}
+    for r in range(rounds):
+        hull3d = _hull(views, masks, obj, options)
+        projected = {v.name: project_hull(hull3d, v) for v in views if v.name in masks}
+        scores = {n: iou(masks[n], projected[n]) for n in masks}
+        if r + 1 == rounds:
+            break
+        for v in views:  # the hull's projection seeds the next round
+            if v.name in masks and scores[v.name] >= options.min_iou:
+                voxel_px = hull3d.voxel * v.fx / max(float(np.linalg.norm(v.centre - obj.mean(0))), 1e-9)
+                labels = mask_seeds((v.height, v.width), projected[v.name], max(3, int(round(2 * voxel_px))))
+                _stamp(labels, fg_of[v.name], bg_of[v.name], options.seeds.feature_radius)
+                masks[v.name] = grabcut(frames[v.name], labels, options.seeds.iterations, fg_of[v.name],
+                                        options.seeds.smooth)
+    for n in list(masks):
+        if not masks[n].any():
+            dropped[n] = "empty mask"
+        elif scores[n] < options.min_iou:
+            dropped[n] = f"disagrees with the other frames' visual hull (IoU {scores[n]:.2f})"
+        if n in dropped:
+            del masks[n]
+    if len(masks) < options.min_frames:
+        raise InputError(where, f"no object can be isolated: {len(masks)} of {len(views)} frames kept a "
+                         "consistent mask", NO_OBJECT_FIX)
+    report = MaskReport(masks, dropped, scores, region.summary(), "onnx" if segmenter else "grabcut",
+                        time.perf_counter() - start)
+    emit("masks", kept=len(masks), dropped=len(dropped), mean_iou_with_hull=report.summary()["mean_iou_with_hull"],
+         method=report.method)
+    return report
+
+
+def _hull(views: list[View], masks: dict[str, np.ndarray], obj: np.ndarray, options: MaskOptions):
+    """The masks' visual hull in a box round the object points, grown by half its size."""
+    lo, hi = obj.min(0), obj.max(0)
+    grow = 0.5 * float(np.max(hi - lo))
+    tolerance = max(1, int(round(options.tolerance_share * len(masks))))
+    return carve(views, masks, lo - grow, hi + grow, options.grid, tolerance)
+
+
+def _stamp(labels: np.ndarray, fg_uv: np.ndarray, bg_uv: np.ndarray, radius: int) -> None:
+    import cv2  # bpy must be imported before cv2 in one process (tests, scripts)
+
+    h, w = labels.shape
+    for uv, value in ((bg_uv, cv2.GC_BGD), (fg_uv, cv2.GC_FGD)):
+        for x, y in np.floor(np.asarray(uv).reshape(-1, 2)).astype(int):
+            if 0 <= x < w and 0 <= y < h:
+                cv2.circle(labels, (int(x), int(y)), radius, int(value), -1)
