@@ -110,6 +110,7 @@ def run(args) -> int:
         "masks", title="Automatic masks",
         context=f"Cycles orbit videos, {args.frames} frames {args.size}, {args.samples} spp; SfM without masks, "
                 f"masks from the object points (GrabCut, visual hull check) against the rendered masks",
-        rows=rows, scalars={"mean IoU": round(mean, 4), "goal": GOAL_IOU, "met": bool(mean >= GOAL_IOU)})
+        rows=rows, scalars={"mean IoU": round(mean, 4), "goal": GOAL_IOU, "met": bool(mean >= GOAL_IOU)},
+        show=["scene", "frames", "kept", "mean IoU", "min IoU", "SfM s", "masks s"])
     print(f"mean IoU {mean:.4f} (goal {GOAL_IOU}); record {path}")
     return 0
