@@ -21,11 +21,14 @@ behind the lamp from the cameras, so the shell keeps it; the masks cannot say ho
 the walls the hull reaches beyond the object, so the start lies at that depth and the
 optimisation brings it forward.
 
-The guard: the object fills every mask, so a cut of free space leaves every silhouette whole.
-Where the cut leaves more than ``MAX_LOST`` of some view's mask pixels uncovered, the lamp is
-inside the object, not in the free space before it (a lamp at the centre of a closed object
-seen from all round: every ray from it leaves the hull where cameras see it). That is a
-capture error, raised as one line."""
+The guard: the object fills every mask, so a cut of free space leaves every silhouette whole;
+directions whose opening uncovers mask pixels are closed again (the shell kept where those
+pixels' rays leave the hull). A lamp at the centre of a closed object seen from all round has
+every direction closed that way, or a few tunnels left open: it stays enclosed, or the cameras
+see the object's outside, which the lamp lights from within. So where, after the cut, the
+lamp is still enclosed, more than ``MAX_LOST`` of a mask is uncovered, or less than
+``MIN_LIT`` of the masks' pixels see surface facing the lamp, the lamp lies inside the object,
+not in the free space before it: a capture error, raised as one line."""
 
 from __future__ import annotations
 
@@ -44,10 +47,11 @@ from ..topology import enclosed
 from .hull import LEVEL, HullField, MaskView
 
 DIRECTIONS = 8192
-SHELL_CELLS = 4.0  # thickness of the far side kept behind the lamp
+SHELL_CELLS = 6.0  # thickness of the far side kept behind the lamp
 OPEN_CELLS = 2.0  # how far past the hull's boundary a direction the cameras see is carved
 MAX_LOST = 0.05  # share of a view's mask pixels the cut may uncover (the outline's pixels, at a few dozen px)
 ROUNDS = 3  # rounds of closing the directions that uncover mask pixels
+MIN_LIT = 0.5  # share of the masks' pixels that must see surface facing a freed light
 CLOSE_NEIGHBOURS = 8  # directions closed around each uncovering pixel's far point
 
 
@@ -146,6 +150,23 @@ def _uncovered(before: RayCaster, after: Mesh, views: list[MaskView], reach: flo
     return worst, np.concatenate(far) if far else np.zeros((0, 3))
 
 
+def lit_share(mesh: Mesh, views: list[MaskView], lights: np.ndarray) -> float:
+    """The share of all views' mask pixels whose first hit on ``mesh`` faces one of ``lights``
+    from the camera's side (the side the camera sees)."""
+    caster = RayCaster(mesh)
+    lit = total = 0
+    for view in views:
+        mask = view.mask.reshape(-1) > LEVEL
+        o, d = pixel_rays(view.camera)
+        o, d = np.broadcast_to(o, d.shape)[mask], d[mask]
+        hits = caster.intersect(o, d)
+        facing = hits.shading_towards(d)[hits.hit]
+        towards = lights[None, :, :] - hits.points[hits.hit][:, None, :]
+        lit += int(((facing[:, None, :] * towards).sum(-1) > 0).any(1).sum())
+        total += int(mask.sum())
+    return lit / max(total, 1)
+
+
 def free_lights(field: HullField, views: list[MaskView], lights: np.ndarray, root) -> tuple[Mesh, list[LightCut]]:
     """The hull's surface with the free space around every light it encloses carved away, and
     the cuts made. Directions whose carving uncovers mask pixels are closed again (the shell
@@ -182,10 +203,12 @@ def free_lights(field: HullField, views: list[MaskView], lights: np.ndarray, roo
         if not closed:
             break
     inside = enclosed(mesh, enclosed_lights) if mesh.n_faces else np.ones(len(enclosed_lights), bool)
-    if lost > MAX_LOST or inside.any():
+    lit = lit_share(mesh, views, enclosed_lights) if mesh.n_faces else 0.0
+    if lost > MAX_LOST or inside.any() or lit < MIN_LIT:
         p = enclosed_lights[int(np.argmax(inside))] if inside.any() else enclosed_lights[0]
         why = (f"carving the free space around it uncovers {100 * lost:.0f}% of a mask" if lost > MAX_LOST
-               else "no free space around it reaches the cameras")
+               else "no free space around it reaches the cameras" if inside.any()
+               else f"the cameras would see only {100 * lit:.0f}% of their masks lit by it")
         raise InputError(root, f"the visual hull encloses the point light at ({p[0]:.3g}, {p[1]:.3g}, {p[2]:.3g}) "
                          f"and {why}: the light lies inside the object",
                          "check the light's position in capture.json against the cameras (a lamp stands in "
