@@ -79,8 +79,9 @@ def test_the_corner_reconstructs_with_interreflection_not_tinted_albedo(corner, 
     decisions = [e for e in events if e["event"] == "effects"]
     assert decisions and decisions[0]["enabled"]["max_depth"] >= 3, decisions[:1]
     assert any("point light" in e.get("message", "") for e in events if e["event"] == "warning")
-    result = load_mesh(run / "result.ply")
-    assert face_components(result)[0] == 1  # one surface
-    tints = floor_tints(result, [f.camera for f in load_capture(corner).frames])
+    assert face_components(load_mesh(run / "result.ply"))[0] == 1  # one surface
+    snapshot = json.loads((run / "snapshot.json").read_text())
+    shown = load_mesh(run / snapshot["mesh"])  # the fitted albedo as vertex colours
+    tints = floor_tints(shown, [f.camera for f in load_capture(corner).frames])
     assert min(tints["hits"].values()) > 20, tints
     assert tints["red"] <= TINT and tints["blue"] <= TINT, tints
