@@ -21,6 +21,7 @@ from ..capture.format import save_capture
 from ..capture.images import write_image, write_mask
 from ..capture.model import Capture, Frame, PointLight
 from ..geometry.mesh import Mesh, save_mesh
+from ..geometry.raycast import RayCaster
 from ..render.fields import VertexField
 from ..render.scene import RenderSettings, SceneRenderer
 from .. import fsio
@@ -94,8 +95,6 @@ def floor_tints(mesh: Mesh, cameras, reach: float = 0.15) -> dict:
     each wall, less the true floor's tint (0: the floor is grey). Each camera casts a ray at
     every point of :func:`floor_strip`; hits within ``reach`` of the point count, their
     albedo interpolated from the hit face's vertices. {"red": t, "blue": t, "hits": {...}}."""
-    from ..geometry.raycast import RayCaster  # Mitsuba: the caller has chosen a variant
-
     caster = RayCaster(mesh)
     out = {"hits": {}}
     for wall in ("red", "blue"):
