@@ -32,7 +32,13 @@ def initial_mesh(capture: Capture, kind: str | None, faces: int, warn=lambda mes
     kind = kind or default_kind(capture)
     cameras = [f.camera for f in capture.frames]
     if kind == "carve":
-        mesh = carve(capture, faces)
+        cuts = []
+        mesh = carve(capture, faces, cuts=cuts)
+        for cut in cuts:
+            p = cut.position
+            warn(f"the visual hull enclosed the point light at ({p[0]:.3g}, {p[1]:.3g}, {p[2]:.3g}): the free space "
+                 f"around it is carved away, open towards the cameras in {100 * cut.open_share:.0f}% of the "
+                 "directions from it")
     elif kind == "sphere":
         mesh = sphere_mesh(capture, faces)
     elif kind == "box":
@@ -52,7 +58,8 @@ def initial_mesh(capture: Capture, kind: str | None, faces: int, warn=lambda mes
 
 def check_lights_outside(capture: Capture, mesh: Mesh, kind: str) -> None:
     """A point light inside the starting surface leaves every render black and every
-    gradient zero: such a run would learn nothing and must not end "done"."""
+    gradient zero: such a run would learn nothing and must not end "done". (A carved start
+    has the lights it enclosed carved out already; this guards the other starts.)"""
     lights = {tuple(np.round(light.position, 9)) for f in capture.frames for light in f.lights}
     if not lights:
         return
