@@ -184,34 +184,31 @@ def _configure(integrator, props) -> None:
     integrator.octree_extra_leaf_sample = props.get("guiding_leaf_samples", integrator.octree_extra_leaf_sample)
 
 
-class ReusingDirectProjective(DirectProjectiveIntegrator):
-    def __init__(self, props):
-        super().__init__(props)
-        _configure(self, props)
+def _reusing(base, name: str):
+    """``base`` (one of Mitsuba's projective integrators) with the guiding reuse and the primarily
+    visible silhouette term traced once (``_configure``, ``_primary_silhouette_once``). A class
+    factory, since Mitsuba's integrator types take a single base."""
 
-    def prepare(self, sensor, seed=0, spp=0, aovs=[]):
-        self.silhouette_seed = seed  # the last sampler's seed (render_ad's silhouette sampler)
-        return super().prepare(sensor, seed, spp, aovs)
+    class Reusing(base):
+        def __init__(self, props):
+            super().__init__(props)
+            _configure(self, props)
 
-    def render_primarily_visible_silhouette(self, scene, sensor, sampler, spp):
-        if self.silhouette_once:
-            return _primary_silhouette_once(self, scene, sensor, sampler, spp)
-        return super().render_primarily_visible_silhouette(scene, sensor, sampler, spp)
+        def prepare(self, sensor, seed=0, spp=0, aovs=[]):
+            self.silhouette_seed = seed  # the last sampler's seed (render_ad's silhouette sampler)
+            return super().prepare(sensor, seed, spp, aovs)
+
+        def render_primarily_visible_silhouette(self, scene, sensor, sampler, spp):
+            if self.silhouette_once:
+                return _primary_silhouette_once(self, scene, sensor, sampler, spp)
+            return super().render_primarily_visible_silhouette(scene, sensor, sampler, spp)
+
+    Reusing.__name__ = Reusing.__qualname__ = name
+    return Reusing
 
 
-class ReusingPathProjective(PathProjectiveIntegrator):
-    def __init__(self, props):
-        super().__init__(props)
-        _configure(self, props)
-
-    def prepare(self, sensor, seed=0, spp=0, aovs=[]):
-        self.silhouette_seed = seed  # the last sampler's seed (render_ad's silhouette sampler)
-        return super().prepare(sensor, seed, spp, aovs)
-
-    def render_primarily_visible_silhouette(self, scene, sensor, sampler, spp):
-        if self.silhouette_once:
-            return _primary_silhouette_once(self, scene, sensor, sampler, spp)
-        return super().render_primarily_visible_silhouette(scene, sensor, sampler, spp)
+ReusingDirectProjective = _reusing(DirectProjectiveIntegrator, "ReusingDirectProjective")
+ReusingPathProjective = _reusing(PathProjectiveIntegrator, "ReusingPathProjective")
 
 
 mi.register_integrator("sft_direct_projective", lambda props: ReusingDirectProjective(props))
