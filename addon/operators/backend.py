@@ -10,7 +10,7 @@ from .. import ROOT_PACKAGE, jobs
 from ..io import interpreter
 from ..io.errors import AddonInputError, require
 from ..preferences import backend_python, installed_venv
-from .common import idle
+from .common import idle, stopped
 from .modal import CancelJob, JobModal
 
 
@@ -53,9 +53,7 @@ class SFT_OT_install_backend(JobModal, bpy.types.Operator):
     def finish(self, context, job: jobs.Job):
         if job.state.status != "done":
             _set_check_result(context, f"Install {job.state.status}: {job.state.message}")
-            self.report({"ERROR"} if job.state.status == "failed" else {"WARNING"},
-                        f"Install Backend {job.state.status}: {job.state.message}")
-            return {"CANCELLED"}
+            return stopped(self, job, "Install Backend")
         check = interpreter.summarise_check(job.state.done.get("python", ""),
                                             [json.dumps(job.state.done.get("check", {}))], [])
         _set_check_result(context, check.summary)

@@ -71,3 +71,11 @@ def poll_reconstruction(cls, context, needs_capture: bool = False) -> bool:
 def fail(operator, err) -> set[str]:
     operator.report({"ERROR"}, str(err))
     return {"CANCELLED"}
+
+
+def stopped(operator, job, what: str) -> set[str]:
+    """The report of a job that did not end "done" ("WHAT failed/cancelled: why"): an error when
+    it failed, a warning when it was cancelled."""
+    operator.report({"ERROR"} if job.state.status == "failed" else {"WARNING"},
+                    f"{what} {job.state.status}: {job.state.message}")
+    return {"CANCELLED"}

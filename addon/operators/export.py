@@ -18,7 +18,7 @@ from bpy_extras.io_utils import ExportHelper
 
 from .. import export, jobs, scene_mesh
 from ..io.errors import AddonInputError, require
-from .common import abspath, fail, idle, poll_reconstruction
+from .common import abspath, fail, idle, poll_reconstruction, stopped
 from .modal import JobModal
 
 
@@ -90,9 +90,7 @@ class SFT_OT_export_gltf(bpy.types.Operator, ExportHelper, JobModal):
     def finish(self, context, job: jobs.WorkerJob):
         try:
             if job.state.status != "done":
-                self.report({"ERROR"} if job.state.status == "failed" else {"WARNING"},
-                            f"Export glTF {job.state.status}: {job.state.message}")
-                return {"CANCELLED"}
+                return stopped(self, job, "Export glTF")
             if not (job.folder / "out.glb").is_file():
                 log = job.process.log_tail(3).replace("\n", " | ")
                 return fail(self, AddonInputError(None, f"the export wrote no file ({log or 'no log'})",

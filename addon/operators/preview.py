@@ -18,7 +18,7 @@ from bpy.props import StringProperty
 from .. import jobs, preview, scene_mesh, world
 from ..io import capture_file
 from ..io.errors import AddonInputError, require
-from .common import abspath, capture_dir, fail, idle, poll_reconstruction
+from .common import abspath, capture_dir, fail, idle, poll_reconstruction, stopped
 from .modal import JobModal
 
 
@@ -80,9 +80,7 @@ class SFT_OT_relit_preview(JobModal, bpy.types.Operator):
     def finish(self, context, job: jobs.WorkerJob):
         try:
             if job.state.status != "done":
-                self.report({"ERROR"} if job.state.status == "failed" else {"WARNING"},
-                            f"Relit Preview {job.state.status}: {job.state.message}")
-                return {"CANCELLED"}
+                return stopped(self, job, "Relit Preview")
             rendered = self.out.with_name(f"{self.out.stem}_render.png")
             try:
                 require((job.folder / "render.png").is_file(), job.folder, "the render wrote no image",
