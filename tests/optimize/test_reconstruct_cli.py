@@ -16,6 +16,7 @@ import pytest
 
 from backend.geometry.mesh import Mesh, load_mesh, save_mesh
 from backend.geometry.topology import inspect
+from backend.optimize.budget import FINISH_MIN_S
 from backend.optimize.config import ReconstructConfig
 from backend.planning.presets import PRESETS, calibrated, preset_for_budget
 from backend.synth.procedural import icosphere
@@ -138,7 +139,9 @@ def test_time_budget_picks_the_calibrated_preset_and_stops_on_time(capture, tmp_
     estimate = report["next_level"]
     assert estimate["extrapolated"] and estimate["level"] == report["levels"][-1]["level"] + 1
     assert "expected to buy" in estimate["line"] and events(run)[-1]["next_level"] == estimate
-    assert 60 * minutes - 1 <= report["timings"]["total"] <= 60 * minutes + 8  # the step in flight, then the result
+    # the last steps stop FINISH_MIN_S (at least) before the budget for writing the results, which
+    # at this size take well under that; the upper bound: the step in flight, then the result
+    assert 60 * minutes - FINISH_MIN_S - 1 <= report["timings"]["total"] <= 60 * minutes + 8
 
 
 def test_min_levels_holds_the_level_convergence_test(capture, tmp_path):
