@@ -1,13 +1,15 @@
 """Try the add-on as a new user would: build the zip, install it into a fresh Blender user
 folder, press Install Backend, then click through with the panel's defaults and time each step.
 
-    python scripts/journey.py --video orbit.mp4 --masks masks/0000.png --env map.hdr --out DIR
+    python scripts/journey.py --video orbit.mp4 --masks masks/0000.png [--env map.hdr] --out DIR
         [--truth ORBIT_DIR] [--python PY] [--budget MINUTES]
 
 Runs with the bpy module (the venv's python). Steps: Install Backend (skipped with
 ``--python``, which names an interpreter that already imports mitsuba), Import Video,
-Import Masks, Import Environment Map, Solve Cameras, Reconstruct, Relit Preview, Export glTF,
-each with the defaults the panel shows (``--budget`` changes the Time Budget only). With
+Import Masks, Import Environment Map (only with ``--env``; without a map the panel's
+Lighting stays Estimate: the run fits an environment with the material), Solve Cameras,
+Reconstruct, Relit Preview, Export glTF, each with the defaults the panel shows
+(``--budget`` changes the Time Budget only). With
 ``--truth`` (a folder written by ``scripts/render_orbit.py``: truth.ply, truth.json) the
 result is scored against the true mesh after a similarity fit (as ``bench realworld``).
 Writes ``DIR/journey.json`` with the seconds of each step and the figures."""
@@ -31,7 +33,7 @@ def parse_args(argv=None):
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--video", type=Path, required=True)
     p.add_argument("--masks", type=Path, required=True, help="one file of the mask sequence, or a mask video")
-    p.add_argument("--env", type=Path, required=True, help="the HDR map")
+    p.add_argument("--env", type=Path, help="the HDR map (default: none, Lighting Estimate)")
     p.add_argument("--out", type=Path, required=True, help="folder for the user folder, capture and results")
     p.add_argument("--truth", type=Path, help="render_orbit.py output folder, to score the result")
     p.add_argument("--python", help="backend interpreter (default: press Install Backend)")
@@ -90,7 +92,8 @@ def main(argv=None) -> int:
     capture = Path(sft.capture_dir)
     manifest = json.loads((capture / "frames.json").read_text())
     step("Import Masks", lambda: bpy.ops.sft.import_masks(filepath=str(args.masks.resolve())))
-    step("Import Environment Map", lambda: bpy.ops.sft.import_environment(filepath=str(args.env.resolve())))
+    if args.env:
+        step("Import Environment Map", lambda: bpy.ops.sft.import_environment(filepath=str(args.env.resolve())))
     step("Solve Cameras", lambda: bpy.ops.sft.solve_cameras())
     step("Reconstruct", lambda: bpy.ops.sft.reconstruct())
     run = Path(sft.run_dir)
@@ -100,7 +103,7 @@ def main(argv=None) -> int:
                "user_min": round(sum(v for k, v in steps.items() if k not in ("install zip", "Install Backend")) / 60, 2),
                "frames": len(manifest["frames"]), "run": str(run),
                "settings": {"quality": sft.preset, "time_budget": sft.time_budget, "material": sft.material,
-                            "init": sft.init, "effects": sft.effects}}
+                            "init": sft.init, "effects": sft.effects, "lighting": sft.lighting}}
     if args.truth:
         sys.path.insert(0, str(ROOT))
         from backend.bench.realworld import score

@@ -5,6 +5,8 @@
 
 SOURCE is a capture (folder, capture.json, transforms.json or COLMAP model) or a video
 (frames are extracted, masks and environment imported, cameras solved by the backend).
+Without ``--env`` the panel's Lighting default, Estimate, holds: the run fits an environment
+map with the material (RUN/environment.exr), and the relit preview renders under it.
 The add-on's operators run as in the UI; the reconstruction is driven synchronously
 because timers never fire in background mode. Exit codes: 0 done, 1 failed, 2 bad input,
 130 cancelled (Ctrl-C stops the backend cleanly and keeps the last snapshot)."""
@@ -43,7 +45,8 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
     video.add_argument("--blur-threshold", type=float, default=0.3)
     video.add_argument("--masks", type=Path, help="mask image sequence (one of its files) or mask video")
     lighting = p.add_argument_group("lighting")
-    lighting.add_argument("--env", type=Path, help="HDR environment map of the capture (EXR/HDR)")
+    lighting.add_argument("--env", type=Path,
+                          help="HDR environment map of the capture (EXR/HDR; default: none, the lighting is estimated)")
     lighting.add_argument("--env-strength", type=float, default=1.0)
     lighting.add_argument("--env-rotation", type=float, default=0.0, help="degrees about Z")
     preview = p.add_argument_group("relit preview")

@@ -2,9 +2,11 @@
 on one calibration scene per kind of lighting.
 
 ``python -m backend bench calibrate [--presets draft,balanced,final] [--scenes dragon,armadillo_env]
-[--out FILE]`` runs each preset on each scene (synthesised once; see ``bench sweep``) exactly
-as ``reconstruct --preset NAME`` would, and writes the calibration file (default
-``backend/presets.json``, which the Blender panel reads)::
+[--material staged|constant] [--out FILE]`` runs each preset on each scene (synthesised once;
+see ``bench sweep``) exactly as ``reconstruct --preset NAME`` would, with reconstruct's
+default material (``MATERIAL``, staged mesh colors: the run the panel's Reconstruct button
+starts, so the times the panel promises are that run's), and writes the calibration file
+(default ``backend/presets.json``, which the Blender panel reads)::
 
     {"machine": "CPU, N cores, variant", "machine_details": {...}, "measured": ..., "scene": ...,
      "code": COMMIT, "presets": {"draft": {"expected_minutes": ..., "expected_f1": ..., ...}, ...},
@@ -14,9 +16,12 @@ The top level is the dragon's (point lights); ``kinds`` holds every kind's, ``en
 from the armadillo under an HDR map, which shades itself (the HDR-lit case where more levels
 pay), which a capture lit by an environment map is promised and its time budget read against
 (planning/presets.py, ``calibrated``). A kind that ``--scenes`` leaves out keeps its entries
-from the file being replaced, and so does a preset that ``--presets`` leaves out. Each scene is
-fitted with the material model its truth calls for (``MATERIALS``: one constant glossy
-material for both). ``expected_f1`` is F1@0.01 as a fraction (0.9 = 90 %).
+from the file being replaced, and so does a preset that ``--presets`` leaves out; every entry
+names its ``material`` and ``code`` (the commit it ran), and each kind its entries' materials.
+``--material constant`` calibrates the one constant material instead (a row per preset of its
+own in the work folder's results; its file defaults to ``WORK/presets-constant.json`` and its
+record to ``calibrate-constant``, so the shipped file stays the default material's).
+``expected_f1`` is F1@0.01 as a fraction (0.9 = 90 %).
 ``--from-results FILE`` writes the file from a sweep's ``results.jsonl`` instead of running
 anything; then each preset also gets
 ``recommended_overrides`` (ReconstructConfig fields, as in ``planning/presets.py``): the
@@ -42,7 +47,7 @@ from ..planning.presets import CALIBRATION_FILE, PRESETS
 from ._machine import code_version, machine, machine_line
 from ._sweep_scenes import SCENES, ensure
 from . import _records
-from .sweep import GRIDS, append_result, load_results, measure
+from .sweep import GRIDS, append_result, load_history, measure
 
 REPO = Path(__file__).resolve().parents[2]
 SCENE = "dragon"
@@ -51,22 +56,47 @@ SCENE = "dragon"
 # (not the textured blob under a map: Draft saturates F1@0.01 there, so every costlier preset
 # is dominated; docs/notes/2026-11-29-hdr-calibration.md)
 KINDS = {"point": "dragon", "environment": "armadillo_env"}
-# the material each scene is fitted with: both truths are one glossy material
-MATERIALS = {"dragon": "constant", "armadillo_env": "constant"}
+# the material the presets are calibrated with: reconstruct's default (planning/job.py
+# DEFAULT_MATERIAL, the staged mesh colors); --material constant calibrates one constant
+# material into a file of its own
+MATERIAL = "staged"
+MATERIAL_CHOICES = ("staged", "constant")
 # time (minutes) and F1@0.01 (percent) each preset is meant to reach on the dragon; None: no limit
 TARGETS = {"draft": (3.0, 80.0), "balanced": (10.0, 90.0), "final": (None, None)}
+
+
+def row_material(row: dict) -> str:
+    """The material a sweep row's run fitted (a row that does not say is the sweep's one
+    constant material)."""
+    return (row.get("knobs") or {}).get("material") or "constant"
+
+
+def entry_material(entry: dict) -> str:
+    """The material a calibration entry was measured with (an entry written before entries
+    named it: its settings', else constant)."""
+    return entry.get("material") or (entry.get("settings") or {}).get("material") or "constant"
+
+
+def calibration_rows(path: Path) -> list[dict]:
+    """The rows of a results file, a later row replacing an earlier one of the same scene,
+    setting and material (a preset calibrated with both materials keeps a row of each)."""
+    rows: dict[tuple, dict] = {}
+    for row in load_history(path):
+        rows[(row["scene"], row["name"], row_material(row))] = row
+    return list(rows.values())
 
 
 def entry(row: dict) -> dict:
     """A preset's calibration entry from a sweep row."""
     out = {"expected_minutes": round(row["seconds"] / 60, 2), "expected_f1": round(row["f1"] / 100, 4),
+           "material": row_material(row),
            "cpu_minutes": round(row["cpu_seconds"] / 60, 2), "chamfer_l1": row.get("chamfer_l1"),
            "f1_005": None if row.get("f1_005") is None else round(row["f1_005"] / 100, 4),
            "novel_psnr": row.get("novel_psnr"), "relit_psnr": row.get("relit_psnr"),
            "peak_memory_mb": row.get("peak_mb"), "load_average": [row.get("load_before"), row.get("load_after")],
            "runs": row.get("repeats", 1), "settings": row["knobs"], "code": row.get("code"),
            # the run's levels and steps: planning/time_plan.py predicts other captures' times from them
-           "iterations": row.get("iterations"), "levels": row.get("levels")}
+           "iterations": row.get("iterations"), "levels": row.get("levels"), "faces": row.get("faces")}
     return out
 
 
@@ -135,8 +165,14 @@ def _keep(new: dict, old: dict | None) -> dict:
     sources = [new.get("code")] + [e.get("code") or old.get("code") for e in kept.values()]
     codes = {c.strip() for code in sources for c in str(code or "").split(",") if c.strip()}
     merged = {n: new["presets"].get(n) or kept[n] for n in TARGETS if n in new["presets"] or n in kept}
-    return {**new, "presets": merged,
+    return {**new, "presets": merged, "material": materials_of(merged),
             "code": ", ".join(sorted(codes)), "measured": max(new["measured"], old.get("measured") or "")}
+
+
+def materials_of(presets: dict) -> str:
+    """The materials a kind's entries were measured with, e.g. 'staged' or 'constant, staged'
+    (a file part recalibrated with another material than the rest)."""
+    return ", ".join(sorted({entry_material(e) for e in presets.values()}))
 
 
 def flag_dominated(doc: dict) -> dict:
@@ -149,18 +185,18 @@ def flag_dominated(doc: dict) -> dict:
     return {**doc, "presets": presets}
 
 
-def calibration(rows: list[dict], machine: dict, margin: float = 1.0, previous: dict | None = None) -> dict:
+def calibration(rows: list[dict], machine: dict, margin: float = 1.0, previous: dict | None = None,
+                material: str = MATERIAL) -> dict:
     """The calibration document from sweep rows of the calibration scenes (presets named as in
-    PRESETS): the dragon's entries at the top level, every kind's under ``kinds``. A kind
-    without rows keeps its entries from ``previous`` (the file being replaced), and a kind
-    with rows keeps the presets they leave out, so one kind, or one preset, can be
-    calibrated at a time."""
+    PRESETS) fitted with ``material`` (rows of another material are left out): the dragon's
+    entries at the top level, every kind's under ``kinds``. A kind without rows keeps its
+    entries from ``previous`` (the file being replaced), and a kind with rows keeps the
+    presets they leave out, so one kind, or one preset, can be calibrated at a time."""
     previous = previous or {}
     old = previous.get("kinds") or ({"point": previous} if isinstance(previous.get("presets"), dict) else {})
     kinds = {}
     for kind, scene in KINDS.items():
-        doc = scene_calibration([r for r in rows if r.get("scene", SCENE) == scene
-                                 and r.get("knobs", {}).get("material", "constant") == MATERIALS[scene]],
+        doc = scene_calibration([r for r in rows if r.get("scene", SCENE) == scene and row_material(r) == material],
                                 machine, scene, margin)
         if doc["presets"]:
             kinds[kind] = flag_dominated(_keep(doc, old.get(kind)))
@@ -169,7 +205,8 @@ def calibration(rows: list[dict], machine: dict, margin: float = 1.0, previous: 
     else:
         top = kinds.get("point") or scene_calibration([], machine, SCENE, margin)
     sources = {**{k: d for k, d in old.items() if k in KINDS}, **kinds}  # this call's rows win
-    return {**top, "kinds": {k: {key: sources[k].get(key) for key in ("scene", "measured", "code", "presets")}
+    return {**top, "kinds": {k: {**{key: sources[k].get(key) for key in ("scene", "measured", "code", "presets")},
+                                 "material": materials_of(sources[k].get("presets") or {})}
                              for k in KINDS if k in sources}}
 
 
@@ -207,7 +244,7 @@ def scene_calibration(rows: list[dict], machine: dict, scene: str, margin: float
     dates = sorted(r["measured"] for r in good if r.get("measured"))
     return {"machine": machine_line(machine), "machine_details": machine,
             "measured": dates[-1] if dates else time.strftime("%Y-%m-%dT%H:%M:%S"),
-            "scene": f"{scene}: {SCENES[scene].description}",
+            "scene": f"{scene}: {SCENES[scene].description}", "material": materials_of(presets),
             "code": ", ".join(sorted({r.get("code", "unknown") for r in good if r["name"] in presets})),
             "metric": "expected_f1 is F1@0.01 as a fraction; expected_minutes is the wall clock of the whole "
                       "reconstruct process (median of the runs); load_average is the 1-minute load before/after",
@@ -216,7 +253,11 @@ def scene_calibration(rows: list[dict], machine: dict, scene: str, margin: float
 
 def add_arguments(parser) -> None:
     parser.add_argument("--presets", default="draft,balanced,final", help="presets to run (default: %(default)s)")
-    parser.add_argument("--out", type=Path, default=CALIBRATION_FILE, help="calibration file (default: %(default)s)")
+    parser.add_argument("--out", type=Path,
+                        help=f"calibration file (default: {CALIBRATION_FILE} for the {MATERIAL} material, "
+                             "WORK/presets-MATERIAL.json for another)")
+    parser.add_argument("--material", choices=MATERIAL_CHOICES, default=MATERIAL,
+                        help="the material the presets run with (default: %(default)s, reconstruct's default)")
     parser.add_argument("--work", type=Path, default=REPO / "runs" / "bench-calibrate",
                         help="work folder for the scene and the runs (default: %(default)s)")
     parser.add_argument("--from-results", type=Path, metavar="RESULTS",
@@ -238,6 +279,8 @@ def run(args) -> int:
     emit = Emitter()
     names = [n.strip() for n in args.presets.split(",") if n.strip()]
     scenes = [n.strip() for n in args.scenes.split(",") if n.strip()]
+    material = args.material
+    out = args.out or (CALIBRATION_FILE if material == MATERIAL else args.work / f"presets-{material}.json")
     wrong = [n for n in scenes if n not in KINDS.values()]
     if wrong:
         raise InputError(None, f"{', '.join(wrong)} is not a calibration scene", f"choose from {', '.join(KINDS.values())}")
@@ -247,45 +290,67 @@ def run(args) -> int:
     if args.from_results:
         require(args.from_results.is_file(), args.from_results, "results file not found",
                 "run python -m backend bench sweep first, or leave out --from-results")
-        rows = [r for r in load_results(args.from_results) if r["scene"] in scenes]
+        rows = [r for r in calibration_rows(args.from_results) if r["scene"] in scenes and row_material(r) == material]
         require(any(r["name"] in names for r in rows), args.from_results,
-                f"no runs of the presets on {', '.join(scenes)}",
-                f"run python -m backend bench sweep --grid presets --scenes {','.join(scenes)}")
+                f"no runs of the presets with the {material} material on {', '.join(scenes)}",
+                "give the results of python -m backend bench calibrate (--work WORK: WORK/results.jsonl), or "
+                "--material constant for a sweep's (bench sweep --grid presets runs one constant material)")
         info = next((r["machine"] for r in rows if r.get("machine")), machine())
         rows = [r for r in rows if r["name"] in names or r["name"] not in TARGETS]
     else:
         info = machine(variant.choose(args.variant, emit))
         settings = {s.name: s for s in GRIDS["presets"]}
         # earlier rows of the work folder count for what this call does not run (one scene at a time)
-        rows = [r for r in load_results(args.work / "results.jsonl") if r["scene"] in KINDS.values()]
+        rows = [r for r in calibration_rows(args.work / "results.jsonl") if r["scene"] in KINDS.values()]
         todo = [(scene, name) for scene in scenes for name in names]
         for i, (scene, name) in enumerate(todo):
             capture = ensure(scene, args.work / "scenes", emit)
             emit("stage", stage=f"calibrate:{scene}:{name}", level=i, faces=0)
-            setting = dataclasses.replace(settings[name], material=MATERIALS[scene])
+            setting = dataclasses.replace(settings[name], material=material)
             row = measure(scene, capture, setting, args.work, args.repeats, float("inf"), args.variant)
             row["machine"], row["code"], row["overrides"] = info, code_version(), PRESETS[name]
             append_result(args.work / "results.jsonl", row)
-            rows = [r for r in rows if (r["scene"], r["name"]) != (scene, name)] + [row]
+            rows = [r for r in rows if (r["scene"], r["name"], row_material(r)) != (scene, name, material)] + [row]
             emit("progress", stage="calibrate", iteration=i + 1, iterations=len(todo), fraction=(i + 1) / len(todo),
-                 scene=scene, preset=name, seconds=row["seconds"], f1=row.get("f1"), rc=row["rc"])
-    doc = calibration(rows, info, args.margin, previous_calibration(args.out))
+                 scene=scene, preset=name, material=material, seconds=row["seconds"], f1=row.get("f1"),
+                 rc=row["rc"])
+    doc = calibration(rows, info, args.margin, previous_calibration(out), material)
     require(any(d["presets"] for d in doc["kinds"].values()), None, "no preset run finished",
             f"see the logs under {args.work / 'logs'}")
-    fsio.write_json(args.out, doc)
+    fsio.write_json(out, doc)
+    shipped = material == MATERIAL
     _records.write_record(
-        "calibrate", title="Presets calibrated", variant=info.get("variant"),
-        context="the Draft / Balanced / Final presets on the point-lit dragon and the HDR-lit armadillo, one constant "
-                "glossy material; written to backend/presets.json, which every run reads",
-        rows=[{"scene": r["scene"], "preset": r["name"].capitalize(), "wall min": _round(r["seconds"] / 60, 2),
-               "CPU min": _round(r.get("cpu_seconds", 0) / 60, 1), "F1@0.01": _round(r.get("f1"), 2),
-               "F1@0.005": _round(r.get("f1_005"), 1), "Chamfer-L1": _round(r.get("chamfer_l1"), 5),
-               "held-out dB": _round(r.get("novel_psnr"), 2), "relit dB": _round(r.get("relit_psnr"), 2),
-               "levels, steps, faces": f"{r.get('levels')}, {r.get('iterations')}, {r.get('faces')}"}
-              for r in rows if r.get("rc") == 0 and r["name"] in TARGETS])
-    emit("done", calibration=str(args.out),
+        "calibrate" if shipped else f"calibrate-{material}",
+        title="Presets calibrated" if shipped else f"Presets calibrated, {material} material",
+        variant=info.get("variant"),
+        context=("the Draft / Balanced / Final presets on the point-lit dragon and the HDR-lit armadillo, each "
+                 f"entry of {out.name if shipped else out} with the material it ran ({MATERIAL}: reconstruct's "
+                 "default, what the panel's times promise) and its commit"),
+        rows=record_rows(doc))
+    emit("done", calibration=str(out), material=material,
          kinds={kind: {n: {k: p[k] for k in ("expected_minutes", "expected_f1")} for n, p in d["presets"].items()}
                 for kind, d in doc["kinds"].items()},
          dominated=[{"kind": kind, "preset": n, "by": by} for kind, d in doc["kinds"].items()
                     for n, by in dominated(d["presets"])])
     return 0
+
+
+def record_rows(doc: dict) -> list[dict]:
+    """The record's table: every entry of the calibration document ``doc``, by kind's scene and
+    preset, with the material and commit it was measured with (a file calibrated a preset at a
+    time holds entries of several runs)."""
+    out = []
+    for kind, d in doc["kinds"].items():
+        for name, e in d["presets"].items():
+            faces = e.get("faces")
+            shown = "" if faces is None else f"{faces / 1000:.0f}k" if faces >= 1000 else str(faces)
+            out.append({"scene": KINDS[kind], "preset": name.capitalize(), "material": entry_material(e),
+                        "wall min": _round(e.get("expected_minutes"), 2), "CPU min": _round(e.get("cpu_minutes"), 1),
+                        "F1@0.01": _round(100 * e["expected_f1"], 2) if e.get("expected_f1") is not None else None,
+                        "F1@0.005": _round(100 * e["f1_005"], 1) if e.get("f1_005") is not None else None,
+                        "Chamfer-L1": _round(e.get("chamfer_l1"), 5), "held-out dB": _round(e.get("novel_psnr"), 2),
+                        "relit dB": _round(e.get("relit_psnr"), 2),
+                        "levels, steps, faces": ", ".join(str(v) for v in (e.get("levels"), e.get("iterations"), shown)
+                                                         if v not in (None, "")),
+                        "code": e.get("code")})
+    return out

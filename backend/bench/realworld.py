@@ -100,7 +100,8 @@ def _wrap(deg: float) -> float:
 
 
 def score(capture_dir: Path, run_dir: Path | None, orbit: Path, index_of: dict[str, int] | None = None) -> dict:
-    """Camera, environment and (with a run) geometry errors of the capture against the truth.
+    """Camera, environment (``env``: None for a capture without a map) and (with a run)
+    geometry errors of the capture against the truth.
     ``index_of`` maps frame names to video frame indices (default: the name is the index)."""
     truth = json.loads((orbit / "truth.json").read_text())
     doc = json.loads((capture_dir / "capture.json").read_text())
@@ -121,7 +122,7 @@ def score(capture_dir: Path, run_dir: Path | None, orbit: Path, index_of: dict[s
     radius = float(np.linalg.norm(theirs - theirs.mean(0), axis=1).mean())
     centre_error = np.linalg.norm(apply(M, ours) - theirs, axis=1) / radius
     rotation_error = np.degrees([Rotation.from_matrix(Rt.T @ Q @ Ro).magnitude() for Ro, Rt in zip(R_ours, R_theirs)])
-    env = doc.get("environment", {})
+    env = doc.get("environment") or {}  # none: a capture with no HDR map (scripts/journey.py without --env)
     stored = float(env.get("rotation_z_deg", 0.0))
     expected = truth["environment"]["rotation_z_deg"] + _yaw_deg(Q)
     lighting = doc.get("provenance", {}).get("lighting", {})
@@ -132,7 +133,7 @@ def score(capture_dir: Path, run_dir: Path | None, orbit: Path, index_of: dict[s
         "scene_tilt_deg": math.degrees(math.acos(min(1.0, abs(float(Q[2, 2]))))),
         "env": {"stored_deg": stored, "expected_deg": _wrap(expected) % 360.0,
                 "error_deg": abs(_wrap(stored - expected)), "aligned": bool(lighting.get("aligned")),
-                "provenance": env.get("provenance", "given"), "strength": env.get("strength")},
+                "provenance": env.get("provenance", "given"), "strength": env.get("strength")} if env else None,
     }
     if run_dir is not None:
         gt, result = load_mesh(orbit / "truth.ply"), load_mesh(run_dir / "result.ply")

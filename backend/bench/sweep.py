@@ -61,7 +61,7 @@ class Setting:
     initial_faces: int | None = None
     max_levels: int | None = None
     init: str | None = None  # None: by the capture (carving with masks)
-    material: str = "constant"  # the sweep scores one constant material; calibrate: the scene's
+    material: str = "constant"  # the sweep scores one constant material; calibrate: its --material
 
     def args(self) -> list[str]:
         """The ``reconstruct`` options of this setting."""

@@ -139,21 +139,93 @@ def test_the_whole_journey_with_the_panels_defaults(context, extension, orbit, t
     assert edited["accessors"][edited["meshes"][0]["primitives"][0]["indices"]]["count"] // 3 == len(obj.data.polygons)
 
 
-def test_the_headless_script_runs_the_same_journey(orbit, tmp_path):
-    """``scripts/reconstruct.py VIDEO --masks M --env E --out scene.blend --gltf out.glb``
-    (plain Python with the bpy module here; ``blender --background --python`` alike)."""
+def _object_pixels(image: Path, mask: Path) -> np.ndarray:
+    """The pixels (RGB in [0, 1]) of ``image`` inside ``mask`` (resized to it, nearest)."""
+    rgb = np.asarray(Image.open(image).convert("RGB"), np.float64) / 255
+    inside = np.asarray(Image.open(mask).convert("L").resize(rgb.shape[1::-1], Image.NEAREST)) > 127
+    return rgb[inside]
+
+
+def _glb_textures(path: Path) -> dict[str, np.ndarray]:
+    """The texels the mesh of ``path`` uses (at its TEXCOORD_0, one per vertex, as rows of
+    values in [0, 1]) in each image its material uses, by the slot that uses it (baseColor,
+    metallicRoughness, specular): an atlas's unused texels are left out."""
+    import io
+
+    from backend.material.export import read_glb
+
+    gltf, blob = read_glb(path)
+
+    def view_bytes(index: int) -> bytes:
+        view = gltf["bufferViews"][index]
+        return blob[view.get("byteOffset", 0): view.get("byteOffset", 0) + view["byteLength"]]
+
+    accessor = gltf["accessors"][gltf["meshes"][0]["primitives"][0]["attributes"]["TEXCOORD_0"]]
+    uv = np.frombuffer(view_bytes(accessor["bufferView"]), np.float32).reshape(accessor["count"], 2)
+    material = gltf["materials"][0]
+    slots = {"baseColor": material["pbrMetallicRoughness"].get("baseColorTexture"),
+             "metallicRoughness": material["pbrMetallicRoughness"].get("metallicRoughnessTexture"),
+             "specular": material.get("extensions", {}).get("KHR_materials_specular", {}).get("specularTexture")}
+    out = {}
+    for slot, ref in slots.items():
+        if ref is None:
+            continue
+        image = gltf["images"][gltf["textures"][ref["index"]]["source"]]
+        pixels = np.asarray(Image.open(io.BytesIO(view_bytes(image["bufferView"]))), np.float64) / 255
+        h, w = pixels.shape[:2]
+        cols = np.clip((uv[:, 0] * w).astype(int), 0, w - 1)
+        rows = np.clip((uv[:, 1] * h).astype(int), 0, h - 1)
+        out[slot] = pixels[rows, cols].reshape(len(uv), -1)
+    return out
+
+
+def test_the_headless_script_runs_the_journey_without_an_hdr_map(orbit, tmp_path):
+    """``scripts/reconstruct.py VIDEO --masks M --out scene.blend --gltf out.glb`` (plain Python
+    with the bpy module here; ``blender --background --python`` alike) with no HDR map: the
+    panel's Lighting default, Estimate, fits an environment with the material, the relit
+    preview renders under that map (RUN/environment.exr), and the textures the run fitted
+    reach result.glb. The HDR-lit journey is the panel's, above."""
     import os
+
+    from backend.capture.load import load_capture
 
     video = shutil.copy(orbit / "orbit" / "orbit.mp4", tmp_path / "orbit.mp4")
     out = tmp_path / "scene.blend"
     env = dict(os.environ, SFT_RECONSTRUCT_SETTINGS=json.dumps(TINY))
     proc = subprocess.run([sys.executable, str(REPO / "scripts" / "reconstruct.py"), str(video), "--masks",
-                           str(orbit / "orbit" / "masks" / "0000.png"), "--env", str(orbit / "sky.exr"), "--out",
-                           str(out), "--gltf", str(tmp_path / "out.glb"), "--samples", "4"],
+                           str(orbit / "orbit" / "masks" / "0000.png"), "--out", str(out),
+                           "--gltf", str(tmp_path / "out.glb"), "--samples", "8"],
                           capture_output=True, text=True, timeout=1800, cwd=REPO, env=env)
     assert proc.returncode == 0, proc.stderr[-3000:]
+    printed = proc.stdout + proc.stderr
     assert out.is_file() and out.with_suffix(".preview.png").is_file()
     assert "KHR_materials_specular" in _glb_json(tmp_path / "out.glb").get("extensionsUsed", [])
-    runs = list((tmp_path / "orbit_capture" / "solved" / "runs").iterdir())
-    argv = json.loads((runs[0] / "command.json").read_text())["argv"]
-    assert argv[argv.index("--material") + 1] == "staged" and "--time-budget" in argv and "--env" in argv
+    solved = tmp_path / "orbit_capture" / "solved"
+    (run,) = list((solved / "runs").iterdir())
+    argv = json.loads((run / "command.json").read_text())["argv"]
+    assert argv[argv.index("--material") + 1] == "staged" and "--time-budget" in argv
+    assert "--env" not in argv and argv[argv.index("--lighting") + 1] == "estimate"
+    report = json.loads((run / "report.json").read_text())
+    assert report["lighting"]["model"] == "environment map (estimated)", report["lighting"]
+    assert (run / report["lighting"].get("file", "environment.exr")).is_file()
+
+    # the preview rendered under the run's estimated map, and the object is lit in it
+    assert "under the run's estimated environment" in printed, printed[-3000:]
+    frame = load_capture(solved).frames[0]
+    rendered = _object_pixels(out.with_name(out.stem + ".preview_render.png"), frame.mask)
+    captured = _object_pixels(frame.image, frame.mask)
+    assert len(rendered) > 100, "the object is not in the preview's frame"
+    lit = rendered.max(1) > 0.05
+    print(f"relit object: mean {rendered.mean():.3f} (frame {captured.mean():.3f}), lit {lit.mean():.2f}")
+    assert rendered.mean() > 0.3 * captured.mean() and lit.mean() > 0.8, "the relit preview is black"
+
+    # result.glb carries the fitted textures, varying where the run fitted them per surface point
+    channels = report["material"]["channels"]
+    assert channels["albedo"] == "colors"
+    textures = _glb_textures(run / "result.glb")
+    assert textures["baseColor"][:, :3].std(0).max() > 0.02, "a constant base-colour texture"
+    fitted = {"metallicRoughness": ("roughness", 1), "specular": ("specular", 3)}
+    for slot, (name, band) in fitted.items():
+        assert slot in textures
+        if channels.get(name) == "colors":
+            assert textures[slot][:, band].std() > 0.005, f"the fitted {name} is constant in result.glb"
