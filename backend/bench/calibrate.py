@@ -326,7 +326,10 @@ def run(args) -> int:
         context=("the Draft / Balanced / Final presets on the point-lit dragon and the HDR-lit armadillo, each "
                  f"entry of {out.name if shipped else out} with the material it ran ({MATERIAL}: reconstruct's "
                  "default, what the panel's times promise) and its commit"),
-        rows=record_rows(doc))
+        rows=record_rows(doc),
+        # the entries' commits (the file is written before the record, so the tree is dirty by then)
+        commit=", ".join(sorted({c.strip()[:7] for d in doc["kinds"].values() for c in str(d.get("code") or "").split(",")
+                                 if c.strip()})))
     emit("done", calibration=str(out), material=material,
          kinds={kind: {n: {k: p[k] for k in ("expected_minutes", "expected_f1")} for n, p in d["presets"].items()}
                 for kind, d in doc["kinds"].items()},
