@@ -1,7 +1,8 @@
 """The artist's journey, clicked with the defaults the panel shows, against the real backend:
 Import Video -> Import Masks -> Import Environment Map -> Solve Cameras -> Reconstruct ->
 Relit Preview -> Export glTF, on a small orbit video the project renders itself (Cycles,
-an icosphere with a procedural texture, under the project's procedural sky). Only the
+an icosphere with a procedural texture, under the project's procedural sky); the headless
+script's journey, without the HDR map (Lighting Estimate). Only the
 reconstruction's sizes shrink, through $SFT_RECONSTRUCT_SETTINGS (the backend's own
 setting), never through Extra Arguments."""
 
