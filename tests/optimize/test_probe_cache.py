@@ -10,6 +10,7 @@ import shutil
 import numpy as np
 from PIL import Image
 
+from backend.bench.budget import before_first_step
 from backend.geometry.mesh import load_mesh
 from tests.helpers import run_cli
 
@@ -21,7 +22,7 @@ def _run(capture, out):
     proc = run_cli("reconstruct", capture, "--out", out, *OPTIONS, check=True)
     events = [json.loads(line) for line in proc.stdout.splitlines() if line.startswith("{")]
     decision = next(e for e in events if e["event"] == "effects")
-    return decision, load_mesh(out / "snapshots" / "000000.ply")
+    return decision, load_mesh(out / "snapshots" / "000000.ply"), before_first_step(events)
 
 
 def _same(first: dict, second: dict) -> None:
@@ -36,15 +37,17 @@ def test_second_run_reuses_the_probes_and_an_edit_misses(tmp_path):
     capture = tmp_path / "capture"
     run_cli("synth", "--out", capture, "--views", 6, "--resolution", 32, "--spp", 16, "--held-out", 0,
             "--lighting", "env", "--env", "sky", check=True)
-    first, mesh = _run(capture, tmp_path / "one")
+    first, mesh, before = _run(capture, tmp_path / "one")
     assert "cache" not in first["measured"] and "costs" in first["measured"]  # measured, cost probe included
+    assert {"init", "effects:bounces", "effects:costs"} <= set(before)  # what ran before the first step
     assert (capture / ".sft-cache" / "effects.json").is_file()
     assert (capture / ".sft-cache" / "initial_mesh.json").is_file()
 
-    second, mesh_again = _run(capture, tmp_path / "two")
+    second, mesh_again, before_again = _run(capture, tmp_path / "two")
     assert second["measured"]["cache"] == "hit"
     assert second["seconds"] < first["seconds"]
     _same(first, second)
+    assert "effects:cached" in before_again and "effects:costs" not in before_again
     assert np.array_equal(mesh_again.faces, mesh.faces)
     assert np.allclose(mesh_again.vertices, mesh.vertices, atol=1e-6)  # the PLY's float32
 
@@ -56,5 +59,5 @@ def test_second_run_reuses_the_probes_and_an_edit_misses(tmp_path):
         Image.fromarray(np.clip(pixels.astype(np.int32) + 1, 0, 255).astype(pixels.dtype)).save(image)
     else:
         image.write_bytes(image.read_bytes())  # rewritten: a newer time
-    third, _ = _run(edited, tmp_path / "three")
+    third, _, _ = _run(edited, tmp_path / "three")
     assert "cache" not in third["measured"]
