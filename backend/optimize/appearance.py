@@ -21,7 +21,7 @@ from ..material.export import write_glb
 from ..material.stages import evaluate_loss
 from ..render import effects
 from ..render.scene import RenderSettings, SceneRenderer
-from . import effect_costs
+from . import decision_cache, effect_costs
 from .exposure_fit import ExposureFit
 from .objective import Objective
 from .relight import Relight
@@ -330,13 +330,23 @@ class Appearance:
         """Measure (or force) the effects and announce the decision."""
         start = time.perf_counter()
         cfg = effects.EffectsConfig(max_depth_probe=max(self.config.max_depth, 4))
-        probe = [v for v in views]
-        renderer = self._renderer(mesh, material, probe, geometry=False, settings=RenderSettings(spp=cfg.spp))
         found = self.decision is not None and self.decision.specular and self.measure
-        self.decision = effects.decide(renderer, [v.target for v in probe],
-                                       [v.mask if v.mask is not None else np.ones(v.target.shape[:2]) for v in probe],
-                                       _emitters(self.capture), cfg, self.overrides, self.measure,
-                                       probe=self._cost_probe(mesh, material, views))
+        # a run's first measured decision is kept beside the capture: a later run with the same
+        # inputs makes it again without its probes (decision_cache)
+        key = (decision_cache.key(self.capture, self.config, mesh, material, views, reason)
+               if self.measure and self.decision is None else None)
+        cached = None if key is None else decision_cache.load(self.capture, key)
+        if cached is not None:
+            self.decision, self.costs = cached
+        else:
+            probe = [v for v in views]
+            renderer = self._renderer(mesh, material, probe, geometry=False, settings=RenderSettings(spp=cfg.spp))
+            self.decision = effects.decide(
+                renderer, [v.target for v in probe],
+                [v.mask if v.mask is not None else np.ones(v.target.shape[:2]) for v in probe],
+                _emitters(self.capture), cfg, self.overrides, self.measure, probe=self._cost_probe(mesh, material, views))
+            if key is not None:
+                decision_cache.store(self.capture, key, self.decision, self.costs)
         if found and not self.decision.specular and "specular" not in self.overrides:
             # a lobe found stays: the lighting and albedo fitted since have taken up part of the
             # highlights, which the test measures against diffuse shading under that lighting

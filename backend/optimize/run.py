@@ -11,7 +11,7 @@ from pathlib import Path
 
 from .. import fsio, interrupt
 from ..capture.model import Capture
-from ..geometry.init import check_lights_outside, initial_mesh
+from ..geometry.init import cached_initial_mesh, check_lights_outside
 from ..geometry.mesh import Mesh, load_mesh, save_mesh
 from ..geometry.simplify import FaceBudget
 from ..geometry.topology import inspect
@@ -156,7 +156,7 @@ class Reconstruction:
         start = time.perf_counter()
         self.emit("stage", stage="init", level=0, faces=0)
         self.paced.progress.update(force=True, stage="init", level=0, iteration=0, iterations=0, loss=None, faces=0)
-        s.mesh, kind = initial_mesh(self.capture, c.init, c.initial_faces,
+        s.mesh, kind = cached_initial_mesh(self.capture, c.init, c.initial_faces,
                                     warn=lambda message: self.emit("warning", message=message))
         check_lights_outside(self.capture, s.mesh, kind)
         coarse = self.viewset.at(c.coarse_size)

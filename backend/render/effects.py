@@ -25,6 +25,7 @@ relative threshold:
 
 from __future__ import annotations
 
+import time
 from dataclasses import asdict, dataclass, field, replace
 
 import drjit as dr
@@ -236,11 +237,20 @@ def decide(renderer, targets, masks, emitters: list[str], cfg: EffectsConfig | N
     views = sorted(set(np.linspace(0, n - 1, min(cfg.views, n)).round().astype(int).tolist()))
     v_targets, v_masks = [targets[v] for v in views], [masks[v] for v in views]
     if measure:
+        seconds, clock = {}, time.perf_counter()
+
+        def lap(name):
+            nonlocal clock
+            seconds[name], clock = round(time.perf_counter() - clock, 3), time.perf_counter()
+
         with dr.suspend_grad():
             bounces = measure_bounces(renderer, views, v_masks, cfg)
+            lap("bounces")
             point_only = bool(emitters) and all(e == "point" for e in emitters)
             shadow = None if point_only else measure_self_shadowing(renderer, views, v_masks)
+            lap("self_shadowing")
             ratio = measure_highlights(renderer, views, v_targets, v_masks, cfg)
+            lap("highlights")
         depth = 2
         for d in sorted(bounces):
             b = bounces[d]
@@ -252,7 +262,7 @@ def decide(renderer, targets, masks, emitters: list[str], cfg: EffectsConfig | N
         decision.shadows = shadow is not None and shadow > cfg.shadow_threshold
         decision.specular = ratio > cfg.highlight_ratio
         decision.measured = {"bounces": {str(k): v for k, v in bounces.items()}, "self_shadowing": shadow,
-                             "highlight_ratio": ratio, "views": views}
+                             "highlight_ratio": ratio, "views": views, "seconds": seconds}
         decision.reasons = {
             "indirect": (f"bounce {depth + 1} adds {100 * bounces.get(depth + 1, {'relative': 0})['relative']:.2f}%"
                          f" (< {100 * cfg.tolerance:g}% or not significant)" if depth < cfg.max_depth_probe
@@ -263,6 +273,7 @@ def decide(renderer, targets, masks, emitters: list[str], cfg: EffectsConfig | N
         }
         if probe is not None and shadow is not None:
             weigh_costs(decision, probe, cfg, overrides)
+            lap("costs")
     else:
         decision.max_depth, decision.shadows, decision.specular = cfg.max_depth_probe, True, True
     if "indirect" in overrides:

@@ -1,5 +1,6 @@
 """Initial meshes: space carving, sphere or box proxies, a sphere cloud, a user mesh, or
-SfM points + screened Poisson. ``initial_mesh(capture, "carve" | ... | FILE, faces, warn)``."""
+SfM points + screened Poisson. ``initial_mesh(capture, "carve" | ... | FILE, faces, warn)``;
+``cached_initial_mesh`` keeps what it made beside the capture for the capture's later runs."""
 
 from __future__ import annotations
 
@@ -7,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ...capture import probe_cache
 from ...capture.model import Capture
 from ...errors import InputError
 from ..mesh import Mesh
@@ -54,6 +56,42 @@ def initial_mesh(capture: Capture, kind: str | None, faces: int, warn=lambda mes
                              "give one of those names or an existing OBJ/PLY file")
         return user_mesh(path, cameras, faces, warn), str(path)
     return check_initial_mesh(mesh, kind, cameras, warn), kind
+
+
+CACHE = "initial_mesh"
+CACHE_ENTRIES = 4  # initial meshes a capture keeps (each a few hundred kB of JSON)
+
+
+def cached_initial_mesh(capture: Capture, kind: str | None, faces: int, warn=lambda message: None) -> tuple[Mesh, str]:
+    """``initial_mesh``, taken from ``CAPTURE/.sft-cache/initial_mesh.json`` when an earlier run
+    made it from the same capture content, kind (a file: its size and time), face count and
+    code (``backend/geometry``), with the warnings it gave then; else made and kept there.
+    The mesh is the same to the bit (floats kept at full precision)."""
+    given = Path(kind) if kind and kind not in KINDS else None
+    stat = given.stat() if given is not None and given.is_file() else None
+    key = probe_cache.key(capture, kind=kind or default_kind(capture), faces=int(faces),
+                          file=None if stat is None else [str(given.resolve()), stat.st_size, stat.st_mtime_ns],
+                          code=probe_cache.code_version(Path(__file__).parents[1]))
+    entry = probe_cache.load(capture, CACHE, key)
+    if isinstance(entry, dict):
+        try:
+            mesh = Mesh(np.array(entry["vertices"], np.float64), np.array(entry["faces"], np.int64))
+            for message in entry.get("warnings", []):
+                warn(message)
+            return mesh, str(entry["kind"])
+        except (KeyError, TypeError, ValueError):
+            pass
+    warnings: list[str] = []
+
+    def kept(message: str) -> None:
+        warnings.append(message)
+        warn(message)
+
+    mesh, used = initial_mesh(capture, kind, faces, kept)
+    if mesh.vertex_colors is None and not mesh.attributes:  # only what the entry holds
+        probe_cache.store(capture, CACHE, key, {"kind": used, "warnings": warnings, "vertices": mesh.vertices,
+                                                "faces": mesh.faces}, most=CACHE_ENTRIES)
+    return mesh, used
 
 
 def check_lights_outside(capture: Capture, mesh: Mesh, kind: str) -> None:

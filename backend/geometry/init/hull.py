@@ -60,14 +60,25 @@ def sample(views: list[MaskView], points: np.ndarray, config: HullConfig, chunk:
         smallest = np.ones((k, len(p)), np.float32)  # the k smallest values seen so far
         seen = np.zeros(len(p), np.int32)
         for view in views:
-            uv, depth = view.camera.project(p)
+            # with k = 1 a point at 0 stays at 0 whatever the other views see: the rest skip it
+            live = np.flatnonzero(smallest[0] > 0) if k == 1 else None
+            if live is not None and len(live) == len(p):
+                live = None
+            q = p if live is None else p[live]
+            if len(q) == 0:
+                break
+            uv, depth = view.camera.project(q)
             h, w = view.mask.shape
             visible = (depth > 0) & (uv[:, 0] >= 0) & (uv[:, 0] <= w) & (uv[:, 1] >= 0) & (uv[:, 1] <= h)
             value = np.where(visible, _bilinear(view.mask, uv), 1.0).astype(np.float32)
-            seen += visible
-            if k == 1:
+            if k == 1 and live is not None:
+                seen[live] += visible
+                smallest[0, live] = np.minimum(smallest[0, live], value)
+            elif k == 1:
+                seen += visible
                 np.minimum(smallest[0], value, out=smallest[0])
             else:
+                seen += visible
                 smallest = np.sort(np.vstack([smallest, value[None]]), axis=0)[:k]
         out[s:s + chunk] = np.where(seen >= max(2, config.min_view_share * len(views)), smallest[-1], 0.0)
     return out
