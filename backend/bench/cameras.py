@@ -19,8 +19,8 @@ import numpy as np
 
 from ..capture.load import load_capture
 from ..geometry.mesh import load_mesh
-from ..optimize.camera_fit import CameraFit, pose_errors, reprojection_px, rotation
-from ..optimize.objective import VERTICES  # noqa: F401  (the objective's vertex key, for readers)
+from ..optimize.camera_fit import CameraFit
+from ..optimize.camera_model import pose_errors, reprojection_px, rotation
 from ..optimize.views import ViewSet
 from ..render.scene import RenderSettings
 from ..render.views import display_field

@@ -17,12 +17,11 @@ from ..geometry.simplify import FaceBudget
 from ..geometry.topology import inspect
 from ..metrics import geometry_metrics
 from ..render.scene import RenderSettings
-from .appearance import Appearance
+from .appearance import Appearance, lit_environment
 from .budget import Budget
 from .camera_fit import CameraRefinement
 from .config import ReconstructConfig
 from .convergence import level_size, levels_end, next_level
-from .appearance import lit_environment
 from .levels import Fit, LevelRun, PolishRun
 from .objective import Objective
 from .progress import LockedEmitter, Paced, Progress, StopOnProgress
@@ -190,8 +189,7 @@ class Reconstruction:
         self.budget.remaining = remaining  # its plan, phases done
         self.emit("stage", stage="resume", level=s.level, faces=s.mesh.n_faces)
         coarse = self.viewset.at(self.config.coarse_size)
-        if self.cameras is not None:
-            self.cameras.restore(s.cameras)
+        self.cameras.restore(s.cameras)
         self.appearance.restore(s.appearance, coarse)
         self.appearance.decide(s.mesh, self.material, coarse, reason="resumed")
         self.stiffness = choose_stiffness(self.config, coarse, spatially_varying=self.appearance.staged)
@@ -221,7 +219,9 @@ class Reconstruction:
                 if cycle is not None:
                     record.add_cycle(cycle)
                     self.track("material")
-                self._refine_cameras(views)
+                self.cameras.after_level(s, self.material, views, self._fit().settings,  # --refine-cameras
+                                         lit_environment(self.capture, self.material), self.budget, self.emit,
+                                         self.folder.check_stop)
                 self.snapshot(loss=record.loss)
                 self._plan()
                 s.levels_ended = levels_end(self.config, s, self.budget, record)
@@ -230,21 +230,6 @@ class Reconstruction:
             transition(self._fit(), self.appearance)
             s.level += 1
             s.phase = "level"
-
-    def _refine_cameras(self, views) -> None:
-        """--refine-cameras: the frames' poses and the intrinsics refined against this level's
-        views, the surface and material frozen (optimize.camera_fit), from the second level on."""
-        s = self.state
-        if self.cameras is None or not self.cameras.due(s.level) or self.budget.out(self.budget.geometry_reserve()):
-            return
-        start = time.perf_counter()
-        settings = self.appearance.geometry_settings(RenderSettings.for_geometry(self.config))
-        record = self.cameras.refine(s.mesh, self.material, views, settings, lit_environment(self.capture, self.material),
-                                     seed=self.config.seed + s.level, check_stop=self.folder.check_stop)
-        s.timed("cameras", start)
-        self.emit("cameras", level=s.level, **record)
-        if record["diverged"]:
-            self.emit("warning", message="camera refinement diverged: the cameras it started from are kept")
 
     def _plan(self) -> None:
         """The planner's estimate of the time left, once, after the first level: measuring this
@@ -354,7 +339,7 @@ class Reconstruction:
         start = time.perf_counter()
         info = {"iteration": s.iteration, "stage": s.phase, "level": s.level, "faces": s.mesh.n_faces, "loss": loss}
         s.accuracy = self.accuracy.state()
-        s.cameras = None if self.cameras is None else self.cameras.state()
+        s.cameras = self.cameras.state()
         state = s.to_json(self.budget.elapsed(), self.appearance.state())
         self.appearance.write_lighting(self.folder.path)  # before the snapshot that announces it
         rel = self.folder.snapshot(self.material.display(s.mesh), info, state, self.material)
@@ -399,8 +384,7 @@ class Reconstruction:
             "premultiplied_views": self.viewset.premultiplied,
             "accuracy_time": tracked, "next_level": expected, "texture_stage": self.texture.report(s.levels),
             **self.appearance.finish(self.folder.path, s.mesh, self.material),
-            "cameras_refined": (self.cameras.finish(self.folder.path, s.mesh, self.accuracy.held is not None)
-                                if self.cameras is not None else {"refined": False, "mode": c.refine_cameras}),
+            "cameras_refined": self.cameras.finish(self.folder.path, s.mesh, self.accuracy.held is not None),
         }
         fsio.write_json(self.folder.path / "report.json", report)
         self.emit("done", result="result.ply", report="report.json", metrics=metrics, next_level=expected)

@@ -14,7 +14,7 @@ from backend.bench.cameras import recovery
 from backend.capture.load import load_capture
 from backend.capture.model import Camera
 from backend.geometry.mesh import Mesh
-from backend.optimize import camera_fit as cf
+from backend.optimize import camera_fit as cf, camera_model as cm
 from tests.helpers import run_cli
 
 FAST = ["--max-size", "32", "--coarse-size", "16", "--initial-faces", "600", "--spp", "4", "--init", "sphere",
@@ -24,7 +24,7 @@ FAST = ["--max-size", "32", "--coarse-size", "16", "--initial-faces", "600", "--
 
 def _camera(rng) -> Camera:
     m = np.eye(4)
-    m[:3, :3] = cf.rotation(rng.normal(size=3))
+    m[:3, :3] = cm.rotation(rng.normal(size=3))
     m[:3, 3] = [0.3, -2.5, 0.4]
     return Camera(64, 48, 80.0, 80.0, 32.0, 24.0, m)
 
@@ -36,18 +36,18 @@ def test_the_chain_rule_matches_finite_differences_and_the_vertex_map_is_the_cam
     focus = cam.camera_to_world[:3, :3].T @ (np.zeros(3) - cam.centre)
 
     def loss(om, phi, dolly, sigma, pp):
-        m, b, _ = cf.vertex_map(cam, *cf.delta(om, phi, dolly, focus), sigma, pp)
+        m, b, _ = cm.vertex_map(cam, *cm.delta(om, phi, dolly, focus), sigma, pp)
         q = pts @ m.T + b
         return float((w * q).sum() + 0.5 * (q ** 2).sum())
 
     om, phi, dolly, sigma, pp = rng.normal(size=3) * 0.02, np.zeros(2), 0.01, 0.01, np.array([0.003, -0.002])
-    rd, t = cf.delta(om, phi, dolly, focus)
-    m, b, parts = cf.vertex_map(cam, rd, t, sigma, pp)
+    rd, t = cm.delta(om, phi, dolly, focus)
+    m, b, parts = cm.vertex_map(cam, rd, t, sigma, pp)
     q = pts @ m.T + b
-    d_eps, d_t, d_sigma, d_a = cf._chain(w + q, pts, parts, sigma)
-    g_om, g_phi, g_dolly = cf._pose_grads(d_eps, d_t, om, phi, dolly, focus)
+    d_eps, d_t, d_sigma, d_a = cm.chain(w + q, pts, parts, sigma)
+    g_om, g_phi, g_dolly = cm.pose_grads(d_eps, d_t, om, phi, dolly, focus)
     h = 1e-6
-    turn = lambda e: cf.log_rotation(cf.rotation(om) @ cf.rotation(e))  # noqa: E731
+    turn = lambda e: cm.log_rotation(cm.rotation(om) @ cm.rotation(e))  # noqa: E731
     num_om = [(loss(turn(h * e), phi, dolly, sigma, pp) - loss(turn(-h * e), phi, dolly, sigma, pp)) / (2 * h)
               for e in np.eye(3)]
     num_phi = [(loss(om, h * e, dolly, sigma, pp) - loss(om, -h * e, dolly, sigma, pp)) / (2 * h) for e in np.eye(2)]
@@ -60,7 +60,7 @@ def test_the_chain_rule_matches_finite_differences_and_the_vertex_map_is_the_cam
     np.testing.assert_allclose([g_dolly, d_sigma], [num_dolly, num_sigma], rtol=1e-5)
     np.testing.assert_allclose(d_a, num_a, rtol=1e-5)
     # the moved vertices seen by the starting camera project where the corrected camera sees the mesh
-    corrected = cf.corrected_camera(cam, rd, t, sigma, pp)
+    corrected = cm.corrected_camera(cam, rd, t, sigma, pp)
     np.testing.assert_allclose(corrected.project(pts)[0], cam.project(q)[0], atol=1e-8)
 
 
