@@ -3,31 +3,35 @@
 prior towards the cameras the run started from (``CameraFit``).
 
 Parameters. Frame i's camera is C_i' = C_i Delta_i (camera-to-world, Blender camera axes), with
-Delta_i = [R(omega_i) | d_i tau_i] a small rigid motion in the camera's own frame: omega_i an
-axis-angle rotation about the camera centre (radians), tau_i a translation in units of the
-camera's distance d_i to the object's centre (tau = 0.01: 1 %). Rotations are updated on the
-tangent space (R <- R exp([eps]x), the gradient taken at eps = 0). The intrinsics are shared by
-every frame: a log focal scale sigma (f' = e^sigma f) and a principal point offset
-(a_x, a_y) = (dc_x / f_x, dc_y / f_y), dimensionless so one value holds at every image size.
+Delta_i = [R_delta | t] a small rigid motion in the camera's own frame (``camera_model.delta``):
+a pan/tilt/roll omega_i (axis-angle about the camera centre, radians) and a dolly towards the
+object's centre (in camera distances: 0.01 is 1 %), then an orbit phi_i about the object's centre
+(about the camera's x and y axes): R_delta = R(phi) R(omega), t = R(phi) (dolly - 1) o + o, o the
+object's centre in the camera's frame. A pan and a sideways move shift the image almost alike,
+an orbit changes only the parallax; apart, Adam's per-coordinate steps see the steep and the
+shallow direction each at its own scale. omega is updated on the tangent space
+(R <- R exp([eps]x)). The intrinsics are shared by every frame: a log focal scale sigma
+(f' = e^sigma f) and a principal point offset (a_x, a_y) = (dc_x / f_x, dc_y / f_y),
+dimensionless so one value holds at every image size.
 
 Gradient through the vertices. The projective integrators take perspective sensors whose
 transforms are not differentiated, so the correction is applied to the object instead: with
-y = R(omega)^T (C^-1 p - d tau) (p in the corrected camera's frame) and the intrinsic map
+y = R_delta^T (C^-1 p - t) (p in the corrected camera's frame) and the intrinsic map
 B = [[s, 0, -a_x], [0, s, a_y], [0, 0, 1]] (s = e^sigma; Blender axes, z towards the camera),
 the vertex q = C B y seen by the starting camera C projects exactly where p projects through
 the corrected camera and intrinsics (a pinhole's u = f x / z + c: scaling x, y by s is the
 focal change, adding a z is the principal point's). So one render of the moved vertices, one
-backward pass, and dL/dq chains to (omega, tau, sigma, a) in closed form (``camera_model.chain``). Point
+backward pass, and dL/dq chains to (omega, phi, dolly, sigma, a) in closed form (``camera_model.chain``). Point
 lights and a world-fixed environment map are moved with the object (the same map), so shading
 is that of the corrected camera too; the intrinsic part also shears the normals by |s - 1| and
 |a| (about 1e-2), which the shading does not see at that order.
 
-Steps. Adam per parameter group (rotation, translation: a step of ``STEP_PX`` pixels at the
-level's focal length; focal and principal point likewise), one view per pose step, the
+Steps. Adam per parameter group (pan, orbit, dolly: a first step of ``STEP_PX`` / f, f the
+level's focal length in pixels; focal scale and principal point likewise), one view per pose step, the
 intrinsic gradients summed over a sweep of all views and applied once per sweep; the step
 decays linearly to a tenth over the sweeps. Geometry and material are frozen meanwhile.
 
-Prior. E = ``PRIOR`` L0_i / 2 (|omega_i|^2 / SIGMA_ROT^2 + |tau_i|^2 / SIGMA_T^2) per frame (L0_i
+Prior. E = ``PRIOR`` L0_i / 2 (|log R_delta|^2 / SIGMA_ROT^2 + |t / d_i|^2 / SIGMA_T^2) per frame (L0_i
 the frame's loss at the start of the refinement, so the weight reads in units of the data term),
 and ``PRIOR`` L0 / 2 (sigma^2 / SIGMA_F^2 + |a f|^2 / SIGMA_PP^2) for the intrinsics (L0 the mean).
 At weight 0.05 a 1-degree error whose loss is all misregistration is recovered to about 2.5 %.
@@ -40,7 +44,11 @@ cameras are taken after a similarity alignment of the camera centres (``align_si
 
 Divergence. A frame whose loss (fixed seed, no gradient) ends above its start, or any
 non-finite value, takes back its last good correction; when every frame fails the refinement
-keeps the starting cameras and says so (``report``). A non-finite pose is never written."""
+keeps the starting cameras and says so (``report``). A non-finite pose is never written.
+
+Intrinsics are nearly a common motion of every camera (a principal-point offset a common pan, a
+focal change a common dolly), so the prior is what tells them apart; ``refine(intrinsics=False)``
+holds them (docs/notes/2026-12-02-camera-refinement.md)."""
 
 from __future__ import annotations
 
