@@ -70,6 +70,11 @@ def test_auto_refines_solved_and_measured_cameras_not_rendered_ones():
         capture = SimpleNamespace(provenance={"source": source} if source else {})
         assert cf.enabled("auto", capture) is expected, source
         assert cf.enabled("on", capture) and not cf.enabled("off", capture)
+    rendered = SimpleNamespace(provenance={"source": "synth"})
+    for mode in ("off", "auto"):  # a run that does not refine: nothing to restore, nothing written
+        unrefined = cf.CameraRefinement.start(rendered, SimpleNamespace(refine_cameras=mode), None)
+        assert isinstance(unrefined, cf.Unrefined) and unrefined.state() is None
+        assert unrefined.finish(None, None, False) == {"refined": False, "mode": mode}
 
 
 def test_a_non_finite_refined_camera_is_never_written(tmp_path):
