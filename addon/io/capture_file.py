@@ -110,3 +110,26 @@ def read_capture(path: str | Path) -> CaptureInfo:
         env = {"path": root / env["path"], "strength": float(env.get("strength", 1.0)),
                "rotation_z_deg": float(env.get("rotation_z_deg", 0.0))}
     return CaptureInfo(root, frames, env)
+
+
+REFINED_FORMAT = "shape-from-tracing-cameras"
+REFINED_FILENAME = "cameras.json"
+
+
+def with_refined_cameras(info: CaptureInfo, run: str | Path | None) -> CaptureInfo:
+    """``info`` with the cameras a run refined (``RUN/cameras.json``, written by ``reconstruct
+    --refine-cameras``) in place of the capture's, matched by frame name; ``info`` itself when
+    the run wrote none. A frame the file does not name keeps its camera (a held-out view)."""
+    path = Path(run) / REFINED_FILENAME if run is not None else None
+    if path is None or not path.is_file():
+        return info
+    try:
+        doc = json.loads(path.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as err:
+        raise AddonInputError(path, "invalid JSON", "delete it to preview with the capture's cameras") from err
+    require(isinstance(doc, dict) and doc.get("format") == REFINED_FORMAT, path,
+            f"'format' is not '{REFINED_FORMAT}'", "delete it to preview with the capture's cameras")
+    refined = {str(fd.get("name")): blender_camera(fd.get("camera") or {}, path, f"frame {fd.get('name')}")
+               for fd in doc.get("frames") or [] if isinstance(fd, dict)}
+    frames = [FrameInfo(f.name, f.image, refined.get(f.name, f.camera), f.mask, f.lights) for f in info.frames]
+    return CaptureInfo(info.root, frames, info.environment)

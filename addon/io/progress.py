@@ -31,6 +31,7 @@ class RunState:
     shadow_samples: str = ""  # what the level's shadow gradients cost, from the newest `shadow_samples` event
     smoothing: str = ""  # the vertex steps' Large Steps smoothing, from the `stiffness` event
     lighting: str = ""  # the fitted lighting (--lighting estimate/rig/flash), from the newest `lighting` event
+    refined_cameras: str = ""  # how far --refine-cameras moved the cameras, from the newest `cameras` event
     done: dict = field(default_factory=dict)  # the `done` event
     accuracy: list = field(default_factory=list)  # (seconds, held-out PSNR) of the `accuracy` events
     predicted: str = ""  # the held-out PSNR the `preset` event predicted, e.g. '24 ± 3 dB'
@@ -87,6 +88,8 @@ class RunState:
                     "+" if floor else "" if spread is None else f" \u00b1 {float(spread):.0f}") + " dB"
         elif kind == "lighting":
             self.lighting = lighting_summary(event)
+        elif kind == "cameras":
+            self.refined_cameras = refined_cameras_summary(event)
         elif kind == "accuracy":
             if event.get("psnr") is not None:
                 self.accuracy.append((float(event.get("seconds") or 0.0), float(event["psnr"])))
@@ -222,6 +225,17 @@ def lighting_summary(event: dict) -> str:
     if when == "fitted":
         return f"{what}, fitted ({event.get('stage')})"
     return f"{what}, {'resumed' if when == 'resumed' else 'first guess'}"
+
+
+def refined_cameras_summary(event: dict) -> str:
+    """One line from a ``cameras`` event (``reconstruct --refine-cameras``), e.g. 'cameras
+    refined: 0.4 px (0.12°, 0.3 %)'."""
+    if event.get("diverged") and not event.get("reprojection_px"):
+        return "cameras: refinement diverged, the given cameras are kept"
+    line = f"cameras refined: {float(event.get('reprojection_px') or 0.0):.2g} px"
+    if event.get("rotation_deg") is not None and event.get("translation_pct") is not None:
+        line += f" ({float(event['rotation_deg']):.2g}\u00b0, {float(event['translation_pct']):.2g} %)"
+    return line
 
 
 def cameras_summary(done: dict) -> str:

@@ -61,6 +61,8 @@ class SFT_OT_relit_preview(JobModal, bpy.types.Operator):
             imported = {"path": abspath(sft.env_path), "strength": sft.env_strength,
                         "rotation_z_deg": sft.env_rotation}
         run = abspath(sft.run_dir) if sft.run_dir else None
+        info = capture_file.with_refined_cameras(info, run)  # --refine-cameras: the run's own cameras
+        frame = info.frames[sft.preview_frame]
         self.lighting = preview.preview_lighting(info, run, sft.lighting, other, imported)
         if self.lighting.env:
             world.load_environment_image(self.lighting.env["path"])  # validate before rendering

@@ -9,6 +9,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from ..lighting.exposure import HELP as EXPOSURE_HELP, MODES as EXPOSURE_MODES
+from ..optimize.camera_fit import HELP as CAMERAS_HELP, MODES as CAMERAS_MODES
 from ..lighting.modes import HELP as LIGHTING_HELP, MODES as LIGHTING_MODES
 from ..planning import job
 from ..optimize.config import STAGED_FACE_GROWTH, ReconstructConfig
@@ -47,6 +48,7 @@ def add_arguments(parser):
     add_lighting_arguments(parser)
     parser.add_argument("--lighting", choices=LIGHTING_MODES, help=LIGHTING_HELP)
     parser.add_argument("--exposure", choices=EXPOSURE_MODES, help=EXPOSURE_HELP)
+    parser.add_argument("--refine-cameras", choices=CAMERAS_MODES, help=CAMERAS_HELP)
     parser.add_argument("--map-calibrated", action="store_true",
                         help="the map's strength is calibrated: keep it (no brightness factor is fitted), so the map "
                              "sets the albedo's scale (a captured map or --env only)")

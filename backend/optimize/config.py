@@ -25,6 +25,11 @@ class ReconstructConfig:
     # per-frame exposure and white balance (backend.lighting.exposure): auto (real captures),
     # off, per-frame
     exposure: str = "auto"
+    # each frame's pose and the shared intrinsics refined between geometry levels
+    # (backend.optimize.camera_fit): auto (solved or measured cameras), on, off; camera_sweeps:
+    # sweeps over every view in one refinement
+    refine_cameras: str = "auto"
+    camera_sweeps: int = 6
     # what sets the albedo's scale (backend.lighting.convention.AlbedoScale): a captured map's
     # strength kept (no brightness factor fitted), or the level of the object's median albedo
     map_calibrated: bool = False

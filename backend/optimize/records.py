@@ -75,6 +75,7 @@ class RunState:
     material_kind: str | None = None
     accuracy: dict | None = None  # the held-out series so far (planning/tracking.py; --track-accuracy)
     level_limit: int | None = None  # steps that end a level, from the run's plan (planning/time_plan.py)
+    cameras: dict | None = None  # the camera corrections (optimize/camera_fit.py; --refine-cameras)
 
     def timed(self, name: str, start: float) -> None:
         """Charge the time since ``start`` (perf_counter) to ``timings[name]``."""
@@ -92,7 +93,8 @@ class RunState:
                 "budget": self.budget.state(), "levels": [lv.to_json() for lv in self.levels],
                 "levels_ended": self.levels_ended, "skipped": self.skipped, "timings": self.timings,
                 "init": self.init, "seconds": round(seconds, 3), "appearance": appearance,
-                "material_kind": self.material_kind, "accuracy": self.accuracy, "level_limit": self.level_limit}
+                "material_kind": self.material_kind, "accuracy": self.accuracy, "level_limit": self.level_limit,
+                "cameras": self.cameras}
 
     @classmethod
     def from_json(cls, state: dict) -> "RunState":
@@ -102,4 +104,4 @@ class RunState:
                    levels_ended=state.get("levels_ended"), skipped=state["skipped"], timings=state["timings"],
                    init=state["init"], seconds_before=state["seconds"], appearance=state.get("appearance"),
                    material_kind=state.get("material_kind"), accuracy=state.get("accuracy"),
-                   level_limit=state.get("level_limit"))
+                   level_limit=state.get("level_limit"), cameras=state.get("cameras"))

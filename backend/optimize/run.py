@@ -17,8 +17,9 @@ from ..geometry.simplify import FaceBudget
 from ..geometry.topology import inspect
 from ..metrics import geometry_metrics
 from ..render.scene import RenderSettings
-from .appearance import Appearance
+from .appearance import Appearance, lit_environment
 from .budget import Budget
+from .camera_fit import CameraRefinement
 from .config import ReconstructConfig
 from .convergence import level_size, levels_end, next_level
 from .levels import Fit, LevelRun, PolishRun
@@ -128,6 +129,7 @@ class Reconstruction:
         self.last_snapshot = 0.0
         self.snapshot_seconds = 0.0  # what the last snapshot took to write
         self.stiffness = None
+        self.cameras = CameraRefinement.start(capture, config, self.viewset)  # --refine-cameras
 
     def run(self, planner=None, remaining=None) -> int:
         """Run to the end (``planner``, ``remaining``: as ``reconstruct`` takes them); returns
@@ -187,6 +189,7 @@ class Reconstruction:
         self.budget.remaining = remaining  # its plan, phases done
         self.emit("stage", stage="resume", level=s.level, faces=s.mesh.n_faces)
         coarse = self.viewset.at(self.config.coarse_size)
+        self.cameras.restore(s.cameras)
         self.appearance.restore(s.appearance, coarse)
         self.appearance.decide(s.mesh, self.material, coarse, reason="resumed")
         self.stiffness = choose_stiffness(self.config, coarse, spatially_varying=self.appearance.staged)
@@ -216,6 +219,9 @@ class Reconstruction:
                 if cycle is not None:
                     record.add_cycle(cycle)
                     self.track("material")
+                self.cameras.after_level(s, self.material, views, self._fit().settings,  # --refine-cameras
+                                         lit_environment(self.capture, self.material), self.budget, self.emit,
+                                         self.folder.check_stop)
                 self.snapshot(loss=record.loss)
                 self._plan()
                 s.levels_ended = levels_end(self.config, s, self.budget, record)
@@ -333,6 +339,7 @@ class Reconstruction:
         start = time.perf_counter()
         info = {"iteration": s.iteration, "stage": s.phase, "level": s.level, "faces": s.mesh.n_faces, "loss": loss}
         s.accuracy = self.accuracy.state()
+        s.cameras = self.cameras.state()
         state = s.to_json(self.budget.elapsed(), self.appearance.state())
         self.appearance.write_lighting(self.folder.path)  # before the snapshot that announces it
         rel = self.folder.snapshot(self.material.display(s.mesh), info, state, self.material)
@@ -377,6 +384,7 @@ class Reconstruction:
             "premultiplied_views": self.viewset.premultiplied,
             "accuracy_time": tracked, "next_level": expected, "texture_stage": self.texture.report(s.levels),
             **self.appearance.finish(self.folder.path, s.mesh, self.material),
+            "cameras_refined": self.cameras.finish(self.folder.path, s.mesh, self.accuracy.held is not None),
         }
         fsio.write_json(self.folder.path / "report.json", report)
         self.emit("done", result="result.ply", report="report.json", metrics=metrics, next_level=expected)

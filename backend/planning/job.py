@@ -33,7 +33,7 @@ from .time_plan import capture_plan, level_limit, make_plan
 OVERRIDES = ("init", "material", "effects", "initial_faces", "iterations", "seed", "max_size", "coarse_size", "views_per_step",
              "integrator", "max_depth", "spp", "remesh", "max_levels", "level_iterations", "step", "lambda_",
              "face_growth", "track_metrics", "track_accuracy", "held_out_every", "texture_stage", "texture_size",
-             "exposure", "map_calibrated", "n_materials")
+             "exposure", "map_calibrated", "n_materials", "refine_cameras")
 VIDEO_SUFFIXES = {".mp4", ".mov", ".m4v", ".avi", ".mkv", ".webm", ".mts", ".mpg", ".mpeg", ".ogv"}
 DEFAULT_MATERIAL = "staged"
 MATERIAL_ALIASES = {"constant": "auto", "full": "staged"}
