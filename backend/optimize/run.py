@@ -38,7 +38,8 @@ LAST_STAGE_COST = 1.5
 
 def reconstruct(capture: Capture, out: RunFolder, config: ReconstructConfig, events, *, resume: bool = False,
                 material=None, objective_factory=Objective, planner=None, tracking=None,
-                remaining=None, started: float | None = None, level_limit: int | None = None) -> Result:
+                remaining=None, started: float | None = None, level_limit: int | None = None,
+                lighting_choice: dict | None = None) -> Result:
     """Reconstruct ``capture`` into the run folder ``out`` (docs/protocol.md), emitting
     ``events`` (an Emitter: ``events(name, **fields)``). Args:
         resume: continue from the folder's saved state.
@@ -58,6 +59,8 @@ def reconstruct(capture: Capture, out: RunFolder, config: ReconstructConfig, eve
         started: the ``time.perf_counter()`` reading the budget's clock starts from (the
             command's start; default: now).
         level_limit: the geometry steps after which a level ends (None: ``level_iterations``).
+        lighting_choice: ``--lighting auto``'s probe (planning.lighting_choice), written to
+            report.json ``lighting_choice``.
     Raises InputError on bad input; cancellation returns exit code 130."""
     if tracking is None:
         if config.track_accuracy:
@@ -65,6 +68,7 @@ def reconstruct(capture: Capture, out: RunFolder, config: ReconstructConfig, eve
         tracking = lambda capture, config: (capture, Untracked())  # noqa: E731
     run = Reconstruction(capture, out, config, events, tracking, material=material, resume=resume,
                          objective_factory=objective_factory, started=started, level_limit=level_limit)
+    run.lighting_choice = lighting_choice
     return Result(run.run(planner, remaining), out.path)
 
 
@@ -128,6 +132,7 @@ class Reconstruction:
         self.last_snapshot = 0.0
         self.snapshot_seconds = 0.0  # what the last snapshot took to write
         self.stiffness = None
+        self.lighting_choice: dict | None = None  # --lighting auto's probe, for report.json
 
     def run(self, planner=None, remaining=None) -> int:
         """Run to the end (``planner``, ``remaining``: as ``reconstruct`` takes them); returns
@@ -378,6 +383,8 @@ class Reconstruction:
             "accuracy_time": tracked, "next_level": expected, "texture_stage": self.texture.report(s.levels),
             **self.appearance.finish(self.folder.path, s.mesh, self.material),
         }
+        if self.lighting_choice is not None:
+            report["lighting_choice"] = self.lighting_choice
         fsio.write_json(self.folder.path / "report.json", report)
         self.emit("done", result="result.ply", report="report.json", metrics=metrics, next_level=expected)
 

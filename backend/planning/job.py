@@ -24,7 +24,7 @@ from ..optimize.appearance import Appearance
 from ..optimize.config import STAGED_FACE_GROWTH, ReconstructConfig
 from ..optimize.run import reconstruct
 from ..optimize.run_folder import RunFolder
-from . import tracking
+from . import lighting_choice, tracking
 from .accuracy_forecast import probe
 from .presets import DEFAULT, PRESETS, calibrated, calibration_scene, lighting_kind, preset_for_budget
 from .remaining import Remaining, resumed
@@ -208,13 +208,36 @@ def run(args) -> int:
             if video is not None:
                 capture = video_capture(video, folder, args.resume, emit)
                 Appearance.check(capture, config)
+            choice = None
+            if config.lighting == "auto":
+                config, choice = _choose_lighting(args, capture, config, emit, folder)
             planner, limit = _preset_event(args, emit, config, capture, folder)
             remaining = resumed(folder.events, config.time_budget_s) if args.resume else None  # its plan, phases done
             return reconstruct(capture, folder, config, emit, resume=args.resume, planner=planner,
                                tracking=tracking.start, remaining=remaining, started=started,
-                               level_limit=limit).exit_code
+                               level_limit=limit, lighting_choice=choice).exit_code
     finally:
         emit.close()
+
+
+def _choose_lighting(args, capture, config, emit, folder):
+    """``--lighting auto``: (the config with the winner's lighting, report.json
+    ``lighting_choice``). The probe (planning/lighting_choice.py) fits only what the run fits
+    (``--track-accuracy``'s held-out views are left out); a resumed run keeps the choice its
+    folder's events recorded. The capture is then lit as the winner says (``resolve_lighting``),
+    and a time budget's preset is chosen again for the winner's kind of lighting."""
+    choice = lighting_choice.resumed(read_log(folder.events)) if args.resume else None
+    if choice is None:
+        fits, _ = tracking.split(capture, config)
+        choice = lighting_choice.choose(fits, config, emit, config.time_budget_s)
+    else:
+        emit(lighting_choice.EVENT, **choice)
+    lighting = resolve_lighting(capture, choice["winner"], source=args.capture)
+    before = choose_preset(args)
+    args.lighting_kind = lighting_kind(capture, lighting)
+    if choose_preset(args) != before:
+        config = config_from_args(args)
+    return dataclasses.replace(config, lighting=lighting), choice
 
 
 @contextmanager
@@ -245,6 +268,7 @@ def _print_plan(args, capture, lighting: str) -> int:
     """--plan: each preset's predicted time on this capture (planning/time_plan.py), printed; no run."""
     require(capture is not None, args.capture, "--plan needs a capture folder",
             "write the capture first (capture-from-video), then plan on it")
+    lighting = "estimate" if lighting == "auto" else lighting  # planned as the probe's most common winner
     probed = safe_probe(probe, capture, probe_config(args, lighting), warn=lambda m: print(f"warning: {m}", flush=True))
     plan = capture_plan(capture, _preset_configs(args, PRESETS), calibrated(kind=lighting_kind(capture, lighting)),
                         probe=probed)
