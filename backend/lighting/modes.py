@@ -3,8 +3,7 @@
 - ``captured``: the capture's own lights (its environment map, its point lights) or the map
   ``--env`` gives; a capture lit by nothing stops with a one-line error (exit 2).
 - ``estimate``: the environment is fitted with the material (backend.lighting.estimated_map);
-  a captured map is withheld (point lights stay). The default when the capture has no light
-  and no ``--env`` is given.
+  a captured map is withheld (point lights stay).
 - ``rig``: the same fitted map, fixed to each view's camera instead of the world (lamps on
   the camera rig, DTU-like studios: the light turns with the view).
 - ``flash``: a point light at every camera centre, its intensity fitted with the material
