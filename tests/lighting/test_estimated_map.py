@@ -175,7 +175,7 @@ def test_normalise_keeps_renders_and_sets_mean_albedo():
 
 def test_resolve_lighting_defaults_and_errors(tmp_path):
     dark = Capture(tmp_path, [])
-    assert resolve_lighting(dark, None) == "estimate"
+    assert resolve_lighting(dark, None) == "auto"  # chosen by the probe (planning.lighting_choice)
     for mode in ("none", "captured"):
         with pytest.raises(InputError, match="no light source"):
             resolve_lighting(Capture(tmp_path, []), mode)
@@ -184,7 +184,9 @@ def test_resolve_lighting_defaults_and_errors(tmp_path):
     assert resolve_lighting(lit, "estimate") == "estimate" and lit.environment is None  # withheld
     with pytest.raises(InputError, match="give one of them"):
         resolve_lighting(Capture(tmp_path, []), "estimate", env=str(tmp_path / "x.exr"))
-    assert resolve_lighting(None, None, video_light=False) == "estimate"
+    assert resolve_lighting(None, None, video_light=False) == "auto"
+    with pytest.raises(InputError, match="give one of them"):
+        resolve_lighting(Capture(tmp_path, []), "auto", env=str(tmp_path / "x.exr"))
 
 
 @pytest.fixture(scope="module")
@@ -207,7 +209,10 @@ def test_capture_without_light_estimates_it_by_default(dark_capture, tmp_path):
     assert proc.returncode == 0, proc.stderr[-3000:]
     log = [json.loads(line) for line in (run / "events.jsonl").read_text().splitlines()]
     assert log[-1]["event"] == "done"
-    assert log[0]["settings"]["lighting"] == "estimate"
+    # no light and no --env: the probe chooses, and the world-fixed map wins on a map-lit capture
+    assert log[0]["settings"]["lighting"] == "auto"
+    assert [e["winner"] for e in log if e["event"] == "lighting_choice"] == ["estimate"]
+    assert json.loads((run / "report.json").read_text())["settings"]["lighting"] == "estimate"
     lighting = [e for e in log if e["event"] == "lighting"]
     assert lighting[0]["when"] == "initial" and any(e["when"] == "fitted" for e in lighting)
     # the map is fitted on the initial mesh before the surface moves (appearance.light_first)
