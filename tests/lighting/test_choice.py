@@ -85,6 +85,8 @@ def test_reconstruct_probes_only_without_an_explicit_lighting(tmp_path, explicit
         assert "lighting_choice" not in report and not events
         return
     choice = report["lighting_choice"]
+    start = next(e for e in read_log(run / "events.jsonl") if e.get("event") == "start")
+    assert start["settings"]["lighting"] == "auto"  # the default for a capture without light
     assert len(events) == 1 and events[0]["winner"] == choice["winner"]
     assert len(choice["candidates"]) == 3 and choice["margin_db"] > 0 and choice["line"].startswith("lighting: ")
     assert report["settings"]["lighting"] == choice["winner"]
