@@ -39,7 +39,7 @@ LAST_STAGE_COST = 1.5
 def reconstruct(capture: Capture, out: RunFolder, config: ReconstructConfig, events, *, resume: bool = False,
                 material=None, objective_factory=Objective, planner=None, tracking=None,
                 remaining=None, started: float | None = None, level_limit: int | None = None,
-                lighting_choice: dict | None = None) -> Result:
+                lighting_choice: dict | None = None, initial: tuple | None = None) -> Result:
     """Reconstruct ``capture`` into the run folder ``out`` (docs/protocol.md), emitting
     ``events`` (an Emitter: ``events(name, **fields)``). Args:
         resume: continue from the folder's saved state.
@@ -61,6 +61,8 @@ def reconstruct(capture: Capture, out: RunFolder, config: ReconstructConfig, eve
         level_limit: the geometry steps after which a level ends (None: ``level_iterations``).
         lighting_choice: ``--lighting auto``'s probe (planning.lighting_choice), written to
             report.json ``lighting_choice``.
+        initial: a new run's initial mesh and its kind, as ``geometry.init.initial_mesh`` makes
+            them from the frames the run fits (the lighting probe made it); None: made here.
     Raises InputError on bad input; cancellation returns exit code 130."""
     if tracking is None:
         if config.track_accuracy:
@@ -68,7 +70,7 @@ def reconstruct(capture: Capture, out: RunFolder, config: ReconstructConfig, eve
         tracking = lambda capture, config: (capture, Untracked())  # noqa: E731
     run = Reconstruction(capture, out, config, events, tracking, material=material, resume=resume,
                          objective_factory=objective_factory, started=started, level_limit=level_limit)
-    run.lighting_choice = lighting_choice
+    run.lighting_choice, run.initial = lighting_choice, initial
     return Result(run.run(planner, remaining), out.path)
 
 
@@ -132,7 +134,7 @@ class Reconstruction:
         self.last_snapshot = 0.0
         self.snapshot_seconds = 0.0  # what the last snapshot took to write
         self.stiffness = None
-        self.lighting_choice: dict | None = None  # --lighting auto's probe, for report.json
+        self.lighting_choice = self.initial = None  # --lighting auto's probe and its (mesh, kind): ``reconstruct``
 
     def run(self, planner=None, remaining=None) -> int:
         """Run to the end (``planner``, ``remaining``: as ``reconstruct`` takes them); returns
@@ -161,8 +163,8 @@ class Reconstruction:
         start = time.perf_counter()
         self.emit("stage", stage="init", level=0, faces=0)
         self.paced.progress.update(force=True, stage="init", level=0, iteration=0, iterations=0, loss=None, faces=0)
-        s.mesh, kind = initial_mesh(self.capture, c.init, c.initial_faces,
-                                    warn=lambda message: self.emit("warning", message=message))
+        s.mesh, kind = self.initial or initial_mesh(self.capture, c.init, c.initial_faces,
+                                                    warn=lambda message: self.emit("warning", message=message))
         check_lights_outside(self.capture, s.mesh, kind)
         coarse = self.viewset.at(c.coarse_size)
         self.material = self.appearance.initial_material(s.mesh, coarse, given=self.material)

@@ -18,6 +18,7 @@ from ..capture.format import FILENAME
 from ..capture.load import load_capture
 from ..errors import InputError, require
 from ..events import Emitter, read_log
+from ..geometry.init import initial_mesh
 from ..lighting.modes import resolve_lighting
 from ..video.inputs import check_inputs, write_capture
 from ..optimize.appearance import Appearance
@@ -208,28 +209,34 @@ def run(args) -> int:
             if video is not None:
                 capture = video_capture(video, folder, args.resume, emit)
                 Appearance.check(capture, config)
-            choice = None
+            choice = initial = None
             if config.lighting == "auto":
-                config, choice = _choose_lighting(args, capture, config, emit, folder)
+                config, choice, initial = _choose_lighting(args, capture, config, emit, folder)
             planner, limit = _preset_event(args, emit, config, capture, folder)
             remaining = resumed(folder.events, config.time_budget_s) if args.resume else None  # its plan, phases done
             return reconstruct(capture, folder, config, emit, resume=args.resume, planner=planner,
                                tracking=tracking.start, remaining=remaining, started=started,
-                               level_limit=limit, lighting_choice=choice).exit_code
+                               level_limit=limit, lighting_choice=choice, initial=initial).exit_code
     finally:
         emit.close()
 
 
 def _choose_lighting(args, capture, config, emit, folder):
     """``--lighting auto``: (the config with the winner's lighting, report.json
-    ``lighting_choice``). The probe (planning/lighting_choice.py) fits only what the run fits
-    (``--track-accuracy``'s held-out views are left out); a resumed run keeps the choice its
-    folder's events recorded. The capture is then lit as the winner says (``resolve_lighting``),
-    and a time budget's preset is chosen again for the winner's kind of lighting."""
+    ``lighting_choice``, the run's initial mesh and its kind, or None on resume). The probe
+    (planning/lighting_choice.py) fits only what the run fits (``--track-accuracy``'s held-out
+    views are left out), on the run's own initial mesh, which the run then starts from; a
+    resumed run keeps the choice its folder's events recorded. The capture is then lit as the
+    winner says (``resolve_lighting``), and a time budget's preset is chosen again for the
+    winner's kind of lighting."""
     choice = lighting_choice.resumed(read_log(folder.events)) if args.resume else None
+    initial = None
     if choice is None:
-        fits, _ = tracking.split(capture, config)
-        choice = lighting_choice.choose(fits, config, emit, config.time_budget_s)
+        fits, _ = tracking.split(capture, config)  # the frames the run fits, as it splits them
+        emit("stage", stage="init", level=0, faces=0)
+        initial = initial_mesh(fits, config.init, config.initial_faces,
+                               warn=lambda message: emit("warning", message=message))
+        choice = lighting_choice.choose(fits, config, emit, config.time_budget_s, mesh=initial[0])
     else:
         emit(lighting_choice.EVENT, **choice)
     lighting = resolve_lighting(capture, choice["winner"], source=args.capture)
@@ -237,7 +244,7 @@ def _choose_lighting(args, capture, config, emit, folder):
     args.lighting_kind = lighting_kind(capture, lighting)
     if choose_preset(args) != before:
         config = config_from_args(args)
-    return dataclasses.replace(config, lighting=lighting), choice
+    return dataclasses.replace(config, lighting=lighting), choice, initial
 
 
 @contextmanager

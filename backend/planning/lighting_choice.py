@@ -3,8 +3,8 @@
 Real captures mix light fixed to the room with light that moves with the camera (a flash, a
 lamp on the rig, the operator), and neither the capture's kind nor its name says which
 dominates. So each model the capture allows (``candidates``) is fitted for a few steps on the
-initial mesh, with a constant diffuse material, on every frame but ``HELD_OUT`` spread ones,
-and scored on those:
+run's initial mesh, with a constant diffuse material, on every frame but ``HELD_OUT`` spread
+ones, and scored on those:
 
 - ``estimate``: an environment map fixed to the world (backend.lighting.estimated_map);
 - ``rig``: the same map fixed to each view's camera (lamps on the camera rig);
@@ -129,12 +129,16 @@ def _fit_and_score(mode: str, fit: Capture, held: Capture, mesh, config, seconds
             "cycles": cycles, "seconds": round(time.perf_counter() - start, 3)}
 
 
-def choose(capture: Capture, config, emit, budget_s: float | None = None, modes: list[str] | None = None) -> dict:
+def choose(capture: Capture, config, emit, budget_s: float | None = None, modes: list[str] | None = None,
+           mesh=None) -> dict:
     """The probe on ``capture`` (not changed): report.json ``lighting_choice``.
 
     ``config``: the run's settings; ``emit``: the run's emitter (a ``stage`` event
     ``lighting:probe``, a ``progress`` event per candidate, then the ``lighting_choice`` event);
-    ``budget_s``: the run's time budget (None: none). Returns {"winner", "runner_up",
+    ``budget_s``: the run's time budget (None: none); ``mesh``: the initial mesh to probe on
+    (the run's own, carved from every frame it fits, the held-out two included: all candidates
+    share it, so it favours none, and the run need not carve twice), else one carved from the
+    probe's fitted frames at ``FACES``. Returns {"winner", "runner_up",
     "margin_db", "candidates": [{"model", "name", "loss", "psnr", "cycles", "seconds"}],
     "held_out": [frame names], "size", "seconds", "line"}; with too few frames to hold any out,
     the world map (the default before the probe existed), with ``candidates`` empty and a ``note``."""
@@ -154,7 +158,8 @@ def choose(capture: Capture, config, emit, budget_s: float | None = None, modes:
     cfg = _probe_config(config)
     fit = _copy(capture, [f for i, f in enumerate(capture.frames) if i not in ids])
     held = _copy(capture, [f for i, f in enumerate(capture.frames) if i in ids])
-    mesh, _ = initial_mesh(fit, config.init, min(FACES, config.initial_faces))
+    if mesh is None:
+        mesh, _ = initial_mesh(fit, config.init, min(FACES, config.initial_faces))
     views = ViewSet(fit, SIZE).at(SIZE)
     held_views = ViewSet(held, SIZE).at(SIZE)
     share = math.inf if budget_s is None else BUDGET_SHARE * budget_s - (time.perf_counter() - start)
