@@ -32,6 +32,7 @@ class RunState:
     smoothing: str = ""  # the vertex steps' Large Steps smoothing, from the `stiffness` event
     lighting: str = ""  # the fitted lighting (--lighting estimate/rig/flash), from the newest `lighting` event
     refined_cameras: str = ""  # how far --refine-cameras moved the cameras, from the newest `cameras` event
+    lighting_choice: str = ""  # --lighting auto's winner and margin, from the `lighting_choice` event
     done: dict = field(default_factory=dict)  # the `done` event
     accuracy: list = field(default_factory=list)  # (seconds, held-out PSNR) of the `accuracy` events
     predicted: str = ""  # the held-out PSNR the `preset` event predicted, e.g. '24 ± 3 dB'
@@ -90,6 +91,8 @@ class RunState:
             self.lighting = lighting_summary(event)
         elif kind == "cameras":
             self.refined_cameras = refined_cameras_summary(event)
+        elif kind == "lighting_choice":
+            self.lighting_choice = lighting_choice_summary(event)
         elif kind == "accuracy":
             if event.get("psnr") is not None:
                 self.accuracy.append((float(event.get("seconds") or 0.0), float(event["psnr"])))
@@ -236,6 +239,19 @@ def refined_cameras_summary(event: dict) -> str:
     if event.get("rotation_deg") is not None and event.get("translation_pct") is not None:
         line += f" ({float(event['rotation_deg']):.2g}\u00b0, {float(event['translation_pct']):.2g} %)"
     return line
+MODEL_NAMES = {"estimate": "world map", "rig": "rig map", "flash": "flash at the camera",
+               "captured": "captured lights"}
+
+
+def lighting_choice_summary(event: dict) -> str:
+    """One line from a ``lighting_choice`` event (``--lighting auto``), e.g. 'lighting: rig map,
+    by 1.2 dB' (the held-out margin over the runner-up), or 'lighting: world map (not probed)'."""
+    winner = str(event.get("winner") or "")
+    name = MODEL_NAMES.get(winner, winner)
+    margin = event.get("margin_db")
+    if margin is None:
+        return f"lighting: {name} (not probed)"
+    return f"lighting: {name}, by {float(margin):.1f} dB"
 
 
 def cameras_summary(done: dict) -> str:

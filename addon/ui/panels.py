@@ -166,6 +166,8 @@ class SFT_PT_reconstruct(_Panel, bpy.types.Panel):
             if facts.resumable:
                 row.operator("sft.reconstruct_resume", icon="FILE_REFRESH")
         _draw_job(layout, job, cancel="sft.reconstruct_cancel")
+        if job is not None and job.state.lighting_choice:  # --lighting auto's winner, its own row
+            layout.label(text=job.state.lighting_choice, icon="LIGHT_SUN")
         _draw_accuracy(layout, job)
         if job is not None and job.state.refined_cameras:
             layout.label(text=job.state.refined_cameras, icon="OUTLINER_OB_CAMERA")

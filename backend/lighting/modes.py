@@ -3,13 +3,18 @@
 - ``captured``: the capture's own lights (its environment map, its point lights) or the map
   ``--env`` gives; a capture lit by nothing stops with a one-line error (exit 2).
 - ``estimate``: the environment is fitted with the material (backend.lighting.estimated_map);
-  a captured map is withheld (point lights stay). The default when the capture has no light
-  and no ``--env`` is given.
+  a captured map is withheld (point lights stay).
 - ``rig``: the same fitted map, fixed to each view's camera instead of the world (lamps on
   the camera rig, DTU-like studios: the light turns with the view).
 - ``flash``: a point light at every camera centre, its intensity fitted with the material
   (backend.lighting.flash); the capture's own lights are replaced (placed here at the
   nominal intensity 1 until the run's initial estimate) and a captured map is withheld.
+- ``auto``: one of ``estimate``, ``rig``, ``flash`` (and ``captured`` when the capture records a
+  light), chosen by its held-out loss on a short probe on the initial mesh
+  (backend.planning.lighting_choice); the capture is left as it is until the run resolves the
+  winner with :func:`resolve_lighting`. The default when the capture has no light and no
+  ``--env`` is given; a capture that records its lights or map (a rendered one) keeps
+  ``captured``, which it knows exactly.
 - ``none``: no estimate; as ``captured``, a capture without light is an error."""
 
 from __future__ import annotations
@@ -22,21 +27,23 @@ from ..capture.validate import validate_environment
 from ..errors import InputError, require
 from . import flash
 
-MODES = ("captured", "estimate", "rig", "flash", "none")
+MODES = ("auto", "captured", "estimate", "rig", "flash", "none")
 # the modes that fit an environment map with the material, and the frame it is fixed to
 MAP_FRAME = {"estimate": "world", "rig": "camera"}
 ESTIMATED = tuple(MAP_FRAME)
-HELP = ("the lighting: 'captured' (the capture's environment map and point lights, or --env), 'estimate' (an "
+HELP = ("the lighting: 'auto' (the model with the lowest held-out loss on a short probe on the initial mesh, "
+        "among a world-fixed map, a camera-fixed map, a flash at the camera and the captured lights when the "
+        "capture records any; report.json lighting_choice), 'captured' (the capture's environment map and point lights, or --env), 'estimate' (an "
         "environment map fitted with the material, written as RUN/environment.exr; a captured map is withheld), "
         "'rig' (the same map fixed to the camera: lamps on the camera rig, as in DTU-like studios), "
         "'flash' (a point light at every camera, e.g. a phone's flash, its intensity fitted with the material; "
         "the capture's own lights are replaced) or 'none' (no estimate: a capture without light is an error). "
-        "Default: estimate when the capture has no light and no --env is given, else captured")
+        "Default: auto when the capture has no light and no --env is given, else captured")
 
 
 def default_mode(has_light: bool, env: str | None) -> str:
-    """``captured`` when the capture has a light or ``--env`` gives one, else ``estimate``."""
-    return "captured" if has_light or env is not None else "estimate"
+    """``captured`` when the capture has a light or ``--env`` gives one, else ``auto``."""
+    return "captured" if has_light or env is not None else "auto"
 
 
 def resolve_lighting(capture: Capture | None, mode: str | None, env: str | None = None,
@@ -50,6 +57,11 @@ def resolve_lighting(capture: Capture | None, mode: str | None, env: str | None 
     require(mode is None or mode in MODES, None, f"unknown --lighting {mode}", f"give one of {', '.join(MODES)}")
     has_light = video_light if capture is None else (capture.environment is not None or capture.has_point_lights)
     mode = mode or default_mode(has_light, env)
+    if mode == "auto":
+        require(env is None, None, "--env gives the lighting and --lighting auto chooses it: give one of them",
+                "drop --env to choose the lighting by the probe, or --lighting auto to use the map")
+        require(strength is None, None, "--env-strength needs --env", "drop --env-strength")
+        return mode
     if mode in ESTIMATED:
         require(env is None, None, f"--env gives the lighting and --lighting {mode} fits it: give one of them",
                 f"drop --env to estimate the lighting, or --lighting {mode} to use the map")

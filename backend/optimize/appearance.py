@@ -146,7 +146,8 @@ class Appearance:
         if factory.kind_for(config.material) == "meshcolors":
             # raises InputError naming the frame of a bad mask
             driver = MaterialDriver(capture, n_materials=getattr(config, "n_materials", 1))
-        check_scale(config, driver is not None, config.lighting in ESTIMATED or config.lighting == "flash",
+        # "auto" (planning.lighting_choice) picks a fitted light for a capture that records none
+        check_scale(config, driver is not None, config.lighting in ESTIMATED or config.lighting in ("flash", "auto"),
                     capture.environment is not None)
         return measure, overrides, driver
 

@@ -1,7 +1,10 @@
 """``reconstruct()``: the one entry point of a reconstruction (the ``reconstruct`` command's
 job, the benchmarks' children and the stability suite all call it). A run initialises a mesh
 and a material, then goes through ``Reconstruction.PHASES`` in order; ``RunState`` says where
-it stands (for --resume and report.json), ``Budget`` holds the clock and its limits."""
+it stands (for --resume and report.json), ``Budget`` holds the clock and its limits.
+
+Longer than 400 lines: the phases, the snapshots and the report share one run's state, and
+each phase's work lives in its own module; what is left here is their order."""
 
 from __future__ import annotations
 
@@ -39,7 +42,8 @@ LAST_STAGE_COST = 1.5
 
 def reconstruct(capture: Capture, out: RunFolder, config: ReconstructConfig, events, *, resume: bool = False,
                 material=None, objective_factory=Objective, planner=None, tracking=None,
-                remaining=None, started: float | None = None, level_limit: int | None = None) -> Result:
+                remaining=None, started: float | None = None, level_limit: int | None = None,
+                lighting_choice: dict | None = None, initial: tuple | None = None) -> Result:
     """Reconstruct ``capture`` into the run folder ``out`` (docs/protocol.md), emitting
     ``events`` (an Emitter: ``events(name, **fields)``). Args:
         resume: continue from the folder's saved state.
@@ -59,6 +63,10 @@ def reconstruct(capture: Capture, out: RunFolder, config: ReconstructConfig, eve
         started: the ``time.perf_counter()`` reading the budget's clock starts from (the
             command's start; default: now).
         level_limit: the geometry steps after which a level ends (None: ``level_iterations``).
+        lighting_choice: ``--lighting auto``'s probe (planning.lighting_choice), written to
+            report.json ``lighting_choice``.
+        initial: a new run's initial mesh and its kind, as ``geometry.init.initial_mesh`` makes
+            them from the frames the run fits (the lighting probe made it); None: made here.
     Raises InputError on bad input; cancellation returns exit code 130."""
     if tracking is None:
         if config.track_accuracy:
@@ -66,6 +74,7 @@ def reconstruct(capture: Capture, out: RunFolder, config: ReconstructConfig, eve
         tracking = lambda capture, config: (capture, Untracked())  # noqa: E731
     run = Reconstruction(capture, out, config, events, tracking, material=material, resume=resume,
                          objective_factory=objective_factory, started=started, level_limit=level_limit)
+    run.lighting_choice, run.initial = lighting_choice, initial
     return Result(run.run(planner, remaining), out.path)
 
 
@@ -130,6 +139,7 @@ class Reconstruction:
         self.snapshot_seconds = 0.0  # what the last snapshot took to write
         self.stiffness = None
         self.cameras = CameraRefinement.start(capture, config, self.viewset)  # --refine-cameras
+        self.lighting_choice = self.initial = None  # --lighting auto's probe and its (mesh, kind): ``reconstruct``
 
     def run(self, planner=None, remaining=None) -> int:
         """Run to the end (``planner``, ``remaining``: as ``reconstruct`` takes them); returns
@@ -158,8 +168,8 @@ class Reconstruction:
         start = time.perf_counter()
         self.emit("stage", stage="init", level=0, faces=0)
         self.paced.progress.update(force=True, stage="init", level=0, iteration=0, iterations=0, loss=None, faces=0)
-        s.mesh, kind = cached_initial_mesh(self.capture, c.init, c.initial_faces,
-                                    warn=lambda message: self.emit("warning", message=message))
+        s.mesh, kind = self.initial or cached_initial_mesh(self.capture, c.init, c.initial_faces,
+                                                           warn=lambda message: self.emit("warning", message=message))
         check_lights_outside(self.capture, s.mesh, kind)
         coarse = self.viewset.at(c.coarse_size)
         self.material = self.appearance.initial_material(s.mesh, coarse, given=self.material)
@@ -386,6 +396,8 @@ class Reconstruction:
             **self.appearance.finish(self.folder.path, s.mesh, self.material),
             "cameras_refined": self.cameras.finish(self.folder.path, s.mesh, self.accuracy.held is not None),
         }
+        if self.lighting_choice is not None:
+            report["lighting_choice"] = self.lighting_choice
         fsio.write_json(self.folder.path / "report.json", report)
         self.emit("done", result="result.ply", report="report.json", metrics=metrics, next_level=expected)
 

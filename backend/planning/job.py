@@ -18,13 +18,14 @@ from ..capture.format import FILENAME
 from ..capture.load import load_capture
 from ..errors import InputError, require
 from ..events import Emitter, read_log
+from ..geometry.init import cached_initial_mesh
 from ..lighting.modes import resolve_lighting
 from ..video.inputs import check_inputs, write_capture
 from ..optimize.appearance import Appearance
 from ..optimize.config import STAGED_FACE_GROWTH, ReconstructConfig
 from ..optimize.run import reconstruct
 from ..optimize.run_folder import RunFolder
-from . import tracking
+from . import lighting_choice, tracking
 from .accuracy_forecast import probe
 from .presets import DEFAULT, PRESETS, calibrated, calibration_scene, lighting_kind, preset_for_budget
 from .remaining import Remaining, resumed
@@ -208,13 +209,42 @@ def run(args) -> int:
             if video is not None:
                 capture = video_capture(video, folder, args.resume, emit)
                 Appearance.check(capture, config)
+            choice = initial = None
+            if config.lighting == "auto":
+                config, choice, initial = _choose_lighting(args, capture, config, emit, folder)
             planner, limit = _preset_event(args, emit, config, capture, folder)
             remaining = resumed(folder.events, config.time_budget_s) if args.resume else None  # its plan, phases done
             return reconstruct(capture, folder, config, emit, resume=args.resume, planner=planner,
                                tracking=tracking.start, remaining=remaining, started=started,
-                               level_limit=limit).exit_code
+                               level_limit=limit, lighting_choice=choice, initial=initial).exit_code
     finally:
         emit.close()
+
+
+def _choose_lighting(args, capture, config, emit, folder):
+    """``--lighting auto``: (the config with the winner's lighting, report.json
+    ``lighting_choice``, the run's initial mesh and its kind, or None on resume). The probe
+    (planning/lighting_choice.py) fits only what the run fits (``--track-accuracy``'s held-out
+    views are left out), on the run's own initial mesh, which the run then starts from; a
+    resumed run keeps the choice its folder's events recorded. The capture is then lit as the
+    winner says (``resolve_lighting``), and a time budget's preset is chosen again for the
+    winner's kind of lighting."""
+    choice = lighting_choice.resumed(read_log(folder.events)) if args.resume else None
+    initial = None
+    if choice is None:
+        fits, _ = tracking.split(capture, config)  # the frames the run fits, as it splits them
+        emit("stage", stage="init", level=0, faces=0)
+        initial = cached_initial_mesh(fits, config.init, config.initial_faces,
+                                      warn=lambda message: emit("warning", message=message))
+        choice = lighting_choice.choose(fits, config, emit, config.time_budget_s, mesh=initial[0])
+    else:
+        emit(lighting_choice.EVENT, **choice)
+    lighting = resolve_lighting(capture, choice["winner"], source=args.capture)
+    before = choose_preset(args)
+    args.lighting_kind = lighting_kind(capture, lighting)
+    if choose_preset(args) != before:
+        config = config_from_args(args)
+    return dataclasses.replace(config, lighting=lighting), choice, initial
 
 
 @contextmanager
@@ -245,6 +275,7 @@ def _print_plan(args, capture, lighting: str) -> int:
     """--plan: each preset's predicted time on this capture (planning/time_plan.py), printed; no run."""
     require(capture is not None, args.capture, "--plan needs a capture folder",
             "write the capture first (capture-from-video), then plan on it")
+    lighting = "estimate" if lighting == "auto" else lighting  # planned as the probe's most common winner
     probed = safe_probe(probe, capture, probe_config(args, lighting), warn=lambda m: print(f"warning: {m}", flush=True))
     plan = capture_plan(capture, _preset_configs(args, PRESETS), calibrated(kind=lighting_kind(capture, lighting)),
                         probe=probed)

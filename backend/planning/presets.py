@@ -34,9 +34,10 @@ def load_calibration(path: Path = CALIBRATION_FILE) -> dict:
 
 def lighting_kind(capture, lighting: str = "captured") -> str:
     """The kind of calibration scene a capture compares with: 'environment' when an
-    environment map lights it (captured, or ``lighting`` 'estimate': one is fitted), else
+    environment map lights it (captured, or ``lighting`` 'estimate': one is fitted; 'auto' before
+    its probe has chosen), else
     'point' (point lights or a flash)."""
-    if lighting in ("estimate", "rig") or (capture is not None and capture.environment is not None):
+    if lighting in ("estimate", "rig", "auto") or (capture is not None and capture.environment is not None):
         return "environment"
     return "point"
 

@@ -175,7 +175,7 @@ def test_normalise_keeps_renders_and_sets_mean_albedo():
 
 def test_resolve_lighting_defaults_and_errors(tmp_path):
     dark = Capture(tmp_path, [])
-    assert resolve_lighting(dark, None) == "estimate"
+    assert resolve_lighting(dark, None) == "auto"  # chosen by the probe (planning.lighting_choice)
     for mode in ("none", "captured"):
         with pytest.raises(InputError, match="no light source"):
             resolve_lighting(Capture(tmp_path, []), mode)
@@ -184,7 +184,9 @@ def test_resolve_lighting_defaults_and_errors(tmp_path):
     assert resolve_lighting(lit, "estimate") == "estimate" and lit.environment is None  # withheld
     with pytest.raises(InputError, match="give one of them"):
         resolve_lighting(Capture(tmp_path, []), "estimate", env=str(tmp_path / "x.exr"))
-    assert resolve_lighting(None, None, video_light=False) == "estimate"
+    assert resolve_lighting(None, None, video_light=False) == "auto"
+    with pytest.raises(InputError, match="give one of them"):
+        resolve_lighting(Capture(tmp_path, []), "auto", env=str(tmp_path / "x.exr"))
 
 
 @pytest.fixture(scope="module")
@@ -199,15 +201,18 @@ SMALL = {"level_iterations": 15, "min_level_iterations": 5, "max_levels": 1, "po
 FAST = ["--max-size", "32", "--coarse-size", "32", "--initial-faces", "800", "--spp", "4", "--effects", "specular"]
 
 
-def test_capture_without_light_estimates_it_by_default(dark_capture, tmp_path):
+def test_capture_without_light_estimates_the_map(dark_capture, tmp_path):
+    # named: the default (auto) probes first (tests/lighting/test_choice.py), which a 30 s budget
+    # would pay for with the relight this test follows
     dark, true_map = dark_capture
     run = tmp_path / "run"
-    proc = run_cli("reconstruct", dark, "--out", run, *FAST, timeout=400,
+    proc = run_cli("reconstruct", dark, "--out", run, "--lighting", "estimate", *FAST, timeout=400,
                    env={"SFT_RECONSTRUCT_SETTINGS": json.dumps(SMALL)})
     assert proc.returncode == 0, proc.stderr[-3000:]
     log = [json.loads(line) for line in (run / "events.jsonl").read_text().splitlines()]
     assert log[-1]["event"] == "done"
     assert log[0]["settings"]["lighting"] == "estimate"
+    assert not [e for e in log if e["event"] == "lighting_choice"]  # named: no probe
     lighting = [e for e in log if e["event"] == "lighting"]
     assert lighting[0]["when"] == "initial" and any(e["when"] == "fitted" for e in lighting)
     # the map is fitted on the initial mesh before the surface moves (appearance.light_first)

@@ -165,7 +165,7 @@ def test_evaluate_renders_an_estimate_run_under_its_fitted_map(tmp_path):
     run_cli("synth", "--out", capture, "--lighting", "env", "--env", hdr, "--views", 8, "--resolution", 32,
             "--spp", 32, "--held-out", 2, check=True)
     strip_light(capture)
-    proc = run_cli("reconstruct", capture, "--out", run, *ESTIMATE_FAST, timeout=400,
+    proc = run_cli("reconstruct", capture, "--out", run, "--lighting", "estimate", *ESTIMATE_FAST, timeout=400,
                    env={"SFT_RECONSTRUCT_SETTINGS": json.dumps(ESTIMATE_SETTINGS)})
     assert proc.returncode == 0, proc.stderr[-3000:]
     report = evaluate(run, capture)

@@ -1,0 +1,191 @@
+"""``--lighting auto``: the lighting model chosen by its held-out loss on a short probe.
+
+Real captures mix light fixed to the room with light that moves with the camera (a flash, a
+lamp on the rig, the operator), and neither the capture's kind nor its name says which
+dominates. So each model the capture allows (``candidates``) is fitted for a few steps on the
+run's initial mesh, with a constant diffuse material, on every frame but ``HELD_OUT`` spread
+ones, and scored on those:
+
+- ``estimate``: an environment map fixed to the world (backend.lighting.estimated_map);
+- ``rig``: the same map fixed to each view's camera (lamps on the camera rig);
+- ``flash``: a point light at every camera centre (backend.lighting.flash);
+- ``captured``: the capture's own map or point lights, when it records any.
+
+The winner has the lowest held-out loss: the mean squared error on sRGB within the masks over
+the held-out views, the quantity whose -10 log10 is their PSNR, so the margin in dB is
+10 log10(runner-up's loss / winner's). The fit and the score use the run's own machinery
+(``Appearance``'s constant material stage, ``lighting.fitted`` for the held-out views), at
+``SIZE`` px and few samples, so a candidate costs seconds. Its time counts in the run's time
+budget (the budget's clock starts with the command); with a budget, the probe takes at most
+``BUDGET_SHARE`` of it, split between the candidates, each stopping after the cycle that
+reaches its share (at least one cycle each)."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from ..capture.model import Capture
+from ..geometry.init import initial_mesh
+from ..lighting import fitted, flash
+from ..capture.images import linear_to_srgb
+from ..optimize.appearance import Appearance
+from ..optimize.views import ViewSet
+from ..render.scene import RenderSettings, SceneRenderer
+
+EVENT = "lighting_choice"
+HELD_OUT = 2  # frames held out of the probe's fits
+MIN_FRAMES = 6  # fewer frames: no probe (too few left to fit, or to score)
+SIZE = 48  # long side of the probe's images, px
+FACES = 1500  # faces of the probe's initial mesh (at most the run's)
+ITERATIONS = 30  # Adam iterations of one constant-material cycle
+CYCLES = 3  # most cycles per candidate (the constant stage may end sooner)
+SPP = 8  # samples per pixel of the fits
+SCORE_SPP = 64  # of the held-out renders (a map lights from every direction: its noise must not decide)
+BUDGET_SHARE = 0.1  # the most of a time budget the probe takes
+SEED = 9_000_011
+NAMES = {"estimate": "world map", "rig": "rig map", "flash": "flash at the camera", "captured": "captured lights"}
+
+
+def candidates(capture: Capture) -> list[str]:
+    """The models ``capture`` allows: the captured lighting when it records a map or point
+    lights, and the three fitted ones (which need nothing but the frames)."""
+    own = capture.environment is not None or capture.has_point_lights
+    return (["captured"] if own else []) + ["estimate", "rig", "flash"]
+
+
+def held_out(n: int, count: int = HELD_OUT) -> list[int]:
+    """``count`` frame indices spread over ``range(n)``, away from its ends (an orbit's first
+    and last frames see nearly the same side)."""
+    return sorted({int(round((k + 0.5) * n / count)) % n for k in range(count)})
+
+
+def _copy(capture: Capture, frames) -> Capture:
+    """A capture of ``frames`` whose light lists are its own (``flash.place`` edits them in place)."""
+    return dataclasses.replace(capture, frames=[dataclasses.replace(f, lights=list(f.lights)) for f in frames])
+
+
+def _probe_config(config):
+    """The run's settings as the probe fits with them: staged constant stage, direct light, tiny images."""
+    return dataclasses.replace(config, material="staged", n_materials=1, known_albedo=None, map_calibrated=False,
+                               exposure="off", spp=SPP, max_depth=2, coarse_size=SIZE, max_size=SIZE,
+                               light_first_cycles=CYCLES, track_accuracy=False)
+
+
+def held_out_loss(renders: list[np.ndarray], views) -> float:
+    """Mean squared error on sRGB (clipped to [0, 1]) within the masks, pooled over ``views``
+    (the quantity of backend.metrics.image.psnr)."""
+    total, weight = 0.0, 0.0
+    for image, view in zip(renders, views):
+        pred = linear_to_srgb(np.clip(image[..., :3], 0, 1)).astype(np.float64)
+        target = linear_to_srgb(np.clip(view.target, 0, 1)).astype(np.float64)
+        w = np.ones(pred.shape[:2]) if view.mask is None else np.clip(view.mask, 0, 1)
+        total += float((((pred - target) ** 2).mean(-1) * w).sum())
+        weight += float(w.sum())
+    return total / max(weight, 1e-12)
+
+
+def _fit_and_score(mode: str, fit: Capture, held: Capture, mesh, config, seconds: float, folder: Path,
+                   views, held_views) -> dict:
+    """One candidate: fitted on ``fit``'s views for up to ``CYCLES`` constant cycles (stopping
+    once ``seconds`` are spent), scored on ``held``'s."""
+    start = time.perf_counter()
+    fit = _copy(fit, fit.frames)
+    held = _copy(held, held.frames)
+    cfg = dataclasses.replace(config, lighting=mode)
+    if mode != "captured":
+        fit.environment = None  # withheld: the model fits the light
+    if mode == "flash":
+        flash.place(fit, 1.0)
+    lights = {f.name: f.lights for f in fit.frames}
+    views = [dataclasses.replace(v, lights=lights[v.name]) for v in views]
+    appearance = Appearance(fit, cfg, emit=lambda *a, **k: {})
+    appearance.driver.settings = dataclasses.replace(appearance.driver.settings, iterations=ITERATIONS,
+                                                     check_every=0, seed=config.seed)
+    appearance.start_lighting(folder)
+    material = appearance.initial_material(mesh, views)
+    material.disable("specular")
+    cycles = 0
+    while cycles < CYCLES and appearance.driver.stage == "constant":
+        if appearance.material_cycle(mesh, material, views, level=0) is None:
+            break
+        cycles += 1
+        if time.perf_counter() - start >= seconds:
+            break
+    lit = fitted.light_views(held, fitted.from_live(appearance.lighting, material))
+    by_name = {f.name: f.lights for f in lit.frames}
+    renderer = SceneRenderer(mesh, material.field, [v.camera for v in held_views],
+                             [by_name[v.name] for v in held_views], lit.environment,
+                             RenderSettings(spp=SCORE_SPP, max_depth=2, integrator="path"))
+    renders = [renderer.render_numpy(i, seed=SEED + i) for i in range(len(held_views))]
+    loss = held_out_loss(renders, held_views)
+    return {"model": mode, "name": NAMES[mode], "loss": loss,
+            "psnr": round(-10 * math.log10(loss), 3) if loss > 0 else math.inf,
+            "cycles": cycles, "seconds": round(time.perf_counter() - start, 3)}
+
+
+def choose(capture: Capture, config, emit, budget_s: float | None = None, modes: list[str] | None = None,
+           mesh=None) -> dict:
+    """The probe on ``capture`` (not changed): report.json ``lighting_choice``.
+
+    ``config``: the run's settings; ``emit``: the run's emitter (a ``stage`` event
+    ``lighting:probe``, a ``progress`` event per candidate, then the ``lighting_choice`` event);
+    ``budget_s``: the run's time budget (None: none); ``mesh``: the initial mesh to probe on
+    (the run's own, carved from every frame it fits, the held-out two included: all candidates
+    share it, so it favours none, and the run need not carve twice), else one carved from the
+    probe's fitted frames at ``FACES``. Returns {"winner", "runner_up",
+    "margin_db", "candidates": [{"model", "name", "loss", "psnr", "cycles", "seconds"}],
+    "held_out": [frame names], "size", "seconds", "line"}; with too few frames to hold any out,
+    the world map (the default before the probe existed), with ``candidates`` empty and a ``note``."""
+    start = time.perf_counter()
+    modes = modes or candidates(capture)
+    n = len(capture.frames)
+    if n < MIN_FRAMES or len(modes) == 1:
+        winner = modes[0] if len(modes) == 1 else ("captured" if "captured" in modes else "estimate")
+        out = {"winner": winner, "runner_up": None, "margin_db": None, "candidates": [], "held_out": [],
+               "size": SIZE, "seconds": 0.0,
+               "note": f"not probed: {n} frames ({MIN_FRAMES} needed)" if n < MIN_FRAMES else "one candidate",
+               "line": f"lighting: {NAMES[winner]} (not probed)"}
+        emit(EVENT, **out)
+        return out
+    emit("stage", stage="lighting:probe", level=0, faces=0)
+    ids = set(held_out(n))
+    cfg = _probe_config(config)
+    fit = _copy(capture, [f for i, f in enumerate(capture.frames) if i not in ids])
+    held = _copy(capture, [f for i, f in enumerate(capture.frames) if i in ids])
+    if mesh is None:
+        mesh, _ = initial_mesh(fit, config.init, min(FACES, config.initial_faces))
+    views = ViewSet(fit, SIZE).at(SIZE)
+    held_views = ViewSet(held, SIZE).at(SIZE)
+    share = math.inf if budget_s is None else BUDGET_SHARE * budget_s - (time.perf_counter() - start)
+    results = []
+    with tempfile.TemporaryDirectory(prefix="sft-lighting-") as folder:
+        for k, mode in enumerate(modes):
+            seconds = share / len(modes)
+            results.append(_fit_and_score(mode, fit, held, mesh, cfg, seconds, Path(folder), views, held_views))
+            emit("progress", stage="lighting:probe", level=0, iteration=k + 1, iterations=len(modes),
+                 loss=results[-1]["loss"], faces=mesh.n_faces)
+    ranked = sorted(results, key=lambda r: r["loss"])
+    winner, second = ranked[0], ranked[1]
+    margin = 10 * math.log10(second["loss"] / winner["loss"]) if winner["loss"] > 0 else math.inf
+    for r in results:
+        r["loss"] = round(r["loss"], 8)
+    out = {"winner": winner["model"], "runner_up": second["model"], "margin_db": round(margin, 3),
+           "candidates": results, "held_out": [capture.frames[i].name for i in sorted(ids)], "size": SIZE,
+           "faces": mesh.n_faces, "seconds": round(time.perf_counter() - start, 3),
+           "line": f"lighting: {winner['name']}, by {margin:.1f} dB over the {second['name']}"}
+    emit(EVENT, **out)
+    return out
+
+
+def resumed(events: list[dict]) -> dict | None:
+    """The choice an earlier run in the folder made (its last ``lighting_choice`` event), or None."""
+    for event in reversed(events):
+        if event.get("event") == EVENT and event.get("winner"):
+            return {k: v for k, v in event.items() if k not in ("event", "time")}
+    return None

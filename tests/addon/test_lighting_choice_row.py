@@ -1,0 +1,16 @@
+"""The panel's row for ``--lighting auto`` (bpy-free: addon.io.progress folds the events)."""
+
+from __future__ import annotations
+
+from addon.io.progress import RunState, lighting_choice_summary
+
+
+def test_the_winner_and_its_margin_become_one_line():
+    state = RunState()
+    state.update({"event": "lighting_choice", "winner": "rig", "runner_up": "estimate", "margin_db": 1.234,
+                  "candidates": []})
+    assert state.lighting_choice == "lighting: rig map, by 1.2 dB"
+    assert lighting_choice_summary({"winner": "estimate", "margin_db": None}) == "lighting: world map (not probed)"
+    state.update({"event": "lighting", "model": "estimate", "frame": "camera", "resolution": [16, 8],
+                  "when": "fitted", "stage": "constant"})
+    assert state.lighting_choice == "lighting: rig map, by 1.2 dB"  # a later lighting event leaves the row

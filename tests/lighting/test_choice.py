@@ -1,0 +1,94 @@
+"""``--lighting auto``: the lighting model chosen by its held-out loss on a short probe.
+
+Real renders of tiny captures whose lights are then stripped from capture.json (as a real
+capture comes): one lit by a flash at each camera picks a model fixed to the camera, one lit
+by a world-fixed HDR map picks the world map. End to end, a run without ``--lighting`` on an
+unlit capture probes and reports each candidate and the margin; an explicit ``--lighting``
+and a capture that records its lights do not probe."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from backend import variant
+
+variant.choose()
+
+from backend.capture.load import load_capture  # noqa: E402
+from backend.events import read_log  # noqa: E402
+from backend.optimize.config import ReconstructConfig  # noqa: E402
+from backend.planning import lighting_choice  # noqa: E402
+from tests.helpers import run_cli, shared_data  # noqa: E402
+from tests.lighting.test_fitted import ESTIMATE_FAST, ESTIMATE_SETTINGS  # noqa: E402
+
+CAMERA_FIXED = {"flash", "rig"}
+
+
+def _capture(tmp_path, *lighting):
+    """A 10-view 32 px capture rendered under ``lighting`` (synth's options), its lights then
+    dropped from capture.json (as a real capture comes)."""
+    path = tmp_path / "capture"
+    run_cli("synth", "--out", path, *lighting, "--specular", 0, "--views", 10, "--resolution", 32, "--spp", 32,
+            "--held-out", 0, check=True)
+    data = json.loads((path / "capture.json").read_text())
+    data.pop("environment", None)
+    for frame in data["frames"]:
+        frame.pop("lights", None)
+    (path / "capture.json").write_text(json.dumps(data))
+    return path
+
+
+def _choose(path) -> dict:
+    events = []
+    choice = lighting_choice.choose(load_capture(path), ReconstructConfig(init="carve"),
+                                    lambda name, **fields: events.append({"event": name, **fields}))
+    assert events[-1]["event"] == lighting_choice.EVENT and events[-1]["winner"] == choice["winner"]
+    assert {c["model"] for c in choice["candidates"]} == {"estimate", "rig", "flash"}
+    assert all(c["loss"] > 0 and c["cycles"] >= 1 for c in choice["candidates"])
+    assert choice["margin_db"] > 0 and len(choice["held_out"]) == lighting_choice.HELD_OUT
+    return choice
+
+
+def test_a_flash_lit_capture_picks_a_camera_fixed_model(tmp_path):
+    choice = _choose(_capture(tmp_path, "--lighting", "flash", "--light-intensity", 2.0))
+    assert choice["winner"] in CAMERA_FIXED, choice
+    world = next(c for c in choice["candidates"] if c["model"] == "estimate")
+    best = next(c for c in choice["candidates"] if c["model"] == choice["winner"])
+    assert best["psnr"] > world["psnr"] + 1, choice
+
+
+def test_a_map_lit_capture_picks_the_world_map(tmp_path):
+    choice = _choose(_capture(tmp_path, "--lighting", "env", "--env", shared_data("envmaps", "forest_slope_1k.hdr")))
+    assert choice["winner"] == "estimate", choice
+
+
+def test_held_out_frames_are_spread_and_distinct():
+    for n in (6, 7, 10, 49):
+        ids = lighting_choice.held_out(n)
+        assert len(ids) == lighting_choice.HELD_OUT and all(0 < i < n - 1 for i in ids), (n, ids)
+        assert ids[1] - ids[0] >= n // 2 - 1
+
+
+@pytest.mark.parametrize("explicit", [False, True])
+def test_reconstruct_probes_only_without_an_explicit_lighting(tmp_path, explicit):
+    path = _capture(tmp_path, "--lighting", "flash", "--light-intensity", 2.0)
+    run = tmp_path / "run"
+    settings = {**ESTIMATE_SETTINGS, "level_iterations": 5, "min_level_iterations": 2, "time_budget_s": 20}
+    proc = run_cli("reconstruct", path, "--out", run, *(["--lighting", "flash"] if explicit else []),
+                   *ESTIMATE_FAST, timeout=400, env={"SFT_RECONSTRUCT_SETTINGS": json.dumps(settings)})
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    report = json.loads((run / "report.json").read_text())
+    events = [e for e in read_log(run / "events.jsonl") if e.get("event") == lighting_choice.EVENT]
+    if explicit:
+        assert "lighting_choice" not in report and not events
+        return
+    choice = report["lighting_choice"]
+    start = next(e for e in read_log(run / "events.jsonl") if e.get("event") == "start")
+    assert start["settings"]["lighting"] == "auto"  # the default for a capture without light
+    assert len(events) == 1 and events[0]["winner"] == choice["winner"]
+    assert len(choice["candidates"]) == 3 and choice["margin_db"] > 0 and choice["line"].startswith("lighting: ")
+    assert report["settings"]["lighting"] == choice["winner"]
+    model = report["lighting"]["model"]
+    assert model == ("flash" if choice["winner"] == "flash" else "environment map (estimated)")
