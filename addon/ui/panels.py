@@ -167,6 +167,8 @@ class SFT_PT_reconstruct(_Panel, bpy.types.Panel):
                 row.operator("sft.reconstruct_resume", icon="FILE_REFRESH")
         _draw_job(layout, job, cancel="sft.reconstruct_cancel")
         _draw_accuracy(layout, job)
+        if facts.exposure and not running:  # what the finished run refined: its per-frame gains
+            layout.label(text=facts.exposure, icon="LIGHT_SUN")
         obj = bpy.data.objects.get(scene_mesh.OBJECT_NAME)
         if obj is not None and obj.type == "MESH" and obj.data.polygons:
             layout.label(text=f"{len(obj.data.polygons)} faces", icon="MESH_DATA")
