@@ -16,7 +16,9 @@ global scale (one factor for all channels, least squares at corresponding surfac
 and after one factor per channel; held-out PSNR (the truth's held-out views carry no drift:
 they are scored at gain 1, the gauge); and the fitted gains against the true ones, both in
 the gauge: the largest and the RMS error in stops, and the share of the drift's variance
-(in log-gain) they leave (``gain residual``: 0 when recovered exactly, 1 when not at all).
+(in log-gain) they leave (``gain residual``: 0 when recovered exactly, 1 when not at all), and the share of the swing
+recovered (``gain recovered``: the least-squares slope of fitted on true log-gains; 1 exact,
+below 1 where the texture took up part of the drift or the prior pulled it in).
 Targets: the drift run's F1@0.01 within 1 point (0.01 as a fraction) of the plain run's,
 its albedo RMSE after the global scale at most 0.05. Writes the ``exposure`` record."""
 
@@ -60,7 +62,9 @@ def gain_errors(fitted: dict, truth: dict) -> dict:
     t = np.log2(np.array([truth[n] for n in names], np.float64))
     err = f - t
     spread = float((t ** 2).mean())
+    slope = float((f * t).sum() / (t ** 2).sum()) if spread > 0 else None
     return {"frames": len(names), "max stops": round(float(np.abs(err).max()), 4),
+            "recovered": round(slope, 3) if slope is not None else None,
             "rms stops": round(float(np.sqrt((err ** 2).mean())), 4),
             "residual": round(float((err ** 2).mean() / spread), 4) if spread > 0 else None,
             "true spread stops": round(float(np.sqrt(spread)), 4)}
