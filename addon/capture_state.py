@@ -18,7 +18,7 @@ from pathlib import Path
 import bpy
 
 from . import jobs
-from .io import frames, preset_file
+from .io import exposure_report, frames, preset_file
 
 POLL_SECONDS = 2.0
 
@@ -36,6 +36,7 @@ class Facts:
     has_materials: bool = False  # materials/*.png
     point_lights: int = 0  # the point lights capture.json gives its frames
     resumable: bool = False  # Resume can continue the run folder
+    exposure: str = ""  # the finished run's per-frame gains in words (io.exposure_report), "" without
     calibration: dict = field(default_factory=dict, compare=False)  # backend/presets.json
 
 
@@ -78,13 +79,14 @@ def read(key: tuple[str, str]) -> Facts:
 
     capture, run = (Path(p) if p else None for p in key)
     if capture is None:
-        return Facts(key, resumable=bool(run) and resumable(str(run)), calibration=calibration())
+        return Facts(key, resumable=bool(run) and resumable(str(run)), calibration=calibration(),
+                     exposure=exposure_report.read(run) if run else "")
     capture_json = capture / "capture.json"
     return Facts(key, has_manifest=(capture / frames.MANIFEST).is_file(), has_capture_json=capture_json.is_file(),
                  frames=_count(capture / frames.IMAGES), masks=_count(capture / frames.MASKS),
                  has_masks_dir=(capture / frames.MASKS).is_dir(), has_materials=_count(capture / frames.MATERIALS) > 0,
                  point_lights=_point_lights(capture_json), resumable=bool(run) and resumable(str(run)),
-                 calibration=calibration())
+                 calibration=calibration(), exposure=exposure_report.read(run) if run else "")
 
 
 def refresh(scene=None, calibration_too: bool = False) -> bool:

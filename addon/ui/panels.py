@@ -171,6 +171,8 @@ class SFT_PT_reconstruct(_Panel, bpy.types.Panel):
         _draw_accuracy(layout, job)
         if job is not None and job.state.refined_cameras:
             layout.label(text=job.state.refined_cameras, icon="OUTLINER_OB_CAMERA")
+        if facts.exposure and not running:  # what the finished run refined: its per-frame gains
+            layout.label(text=facts.exposure, icon="IMAGE_RGB_ALPHA")
         obj = bpy.data.objects.get(scene_mesh.OBJECT_NAME)
         if obj is not None and obj.type == "MESH" and obj.data.polygons:
             layout.label(text=f"{len(obj.data.polygons)} faces", icon="MESH_DATA")

@@ -110,6 +110,7 @@ JOBS = (
     Job("sfm", "sfm", 0.25, (("bench", "sfm", "--out", "{out}/sfm.json"),)),
     Job("masks", "masks", 0.3, (("bench", "masks", "--out", "{out}"),)),
     Job("cameras", "cameras", 0.05, (("bench", "cameras", "--out", "{out}"),)),
+    Job("exposure", "exposure", 0.2, (("bench", "exposure", "--out", "{out}", "--minutes", "2.5", "--without-fit"),)),
     Job("stability", "stability", 0.1, (("bench", "stability", "--quick", "--out", "{out}"),)),
     Job("sweep", "sweep", 0.6,
         (("bench", "sweep", "--grid", "quick", "--out", "{out}", "--report", "{report}"),)),

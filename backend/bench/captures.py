@@ -22,7 +22,8 @@ sphere start), the commands a user runs, as child processes:
 Scores. Each row's PSNR is on sRGB within the frame's mask (the whole frame without one),
 the render at SIZE px and ``--spp``, as ``--track-accuracy`` scores (which renders fewer
 samples; its last point is printed beside it). The held-out figure is the mean over the
-held-out rows. Results: ``OUT/captures.json`` and a printed table."""
+held-out rows. A run that fitted per-frame gains is scored at them (fitted frames at their
+own, held-out frames at the gains' median: ``scored_at``). Results: ``OUT/captures.json`` and a printed table."""
 
 from __future__ import annotations
 
@@ -40,7 +41,7 @@ from .. import variant
 from ..capture.images import linear_to_srgb, read_linear_rgb
 from ..capture.load import load_capture
 from ..geometry.mesh import load_mesh
-from ..lighting import fitted
+from ..lighting import exposure, fitted
 from ..lighting.modes import MAP_FRAME
 from ..metrics.image import psnr
 from ..optimize.views import ViewSet
@@ -91,7 +92,10 @@ def _srgb8(linear: np.ndarray) -> np.ndarray:
 
 def render_rows(capture_dir: Path, run_dir: Path, size: int, spp: int, fitted_rows: int) -> list[dict]:
     """The contact sheet's rows: held-out frames (those the run's report names) first, then up
-    to ``fitted_rows`` fitted ones spread over the capture; each with photo, render, PSNR."""
+    to ``fitted_rows`` fitted ones spread over the capture; each with photo, render, PSNR.
+    A run that fitted per-frame gains (``--exposure``) is scored at them: a fitted frame's
+    render times its own gains, a held-out one's times their median
+    (backend.lighting.exposure.scoring_gains)."""
     variant.choose()
     capture = load_capture(capture_dir)
     report = json.loads((run_dir / "report.json").read_text())
@@ -107,9 +111,10 @@ def render_rows(capture_dir: Path, run_dir: Path, size: int, spp: int, fitted_ro
                              [lights[v.name] for v in chosen], lit.environment,
                              RenderSettings(spp=spp, max_depth=4, integrator="path"))
     frames = {f.name: f for f in capture.frames}
+    gains = exposure.scoring_gains(report.get("exposure"), [v.name for v in chosen])
     rows = []
     for i, v in enumerate(chosen):
-        render = renderer.render_numpy(i, seed=i)[..., :3]
+        render = renderer.render_numpy(i, seed=i)[..., :3] * gains[v.name]  # the frame's camera response
         photo = capture.camera_response.radiance(read_linear_rgb(frames[v.name].image))
         photo = np.asarray(Image.fromarray(_srgb8(photo)).resize((v.camera.width, v.camera.height), Image.BOX))
         rows.append({"frame": v.name, "held_out": v.name in held, "psnr": float(psnr(render, v.target, v.mask)),
@@ -177,6 +182,7 @@ def one(name: str, spec: RealCapture, args) -> dict:
         "held_out_psnr": float(np.mean(held)) if held else None,
         "held_out_psnr_each": {r["frame"]: round(r["psnr"], 3) for r in rows if r["held_out"]},
         "fitted_psnr": float(np.mean(fit)) if fit else None,
+        "scored_at": exposure.scoring_note(report.get("exposure")),
         "tracked_last_psnr": points[-1]["psnr"] if points else None,
         "lighting": lighting, "environment_map": (run / "environment.exr").is_file(),
         "faces": report["result"]["faces"], "genus": report["result"]["genus"],

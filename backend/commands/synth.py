@@ -3,10 +3,14 @@
 from __future__ import annotations
 
 import dataclasses
+import math
 from pathlib import Path
 
+from ..errors import require
 from ..events import Emitter
 from ..synth.capture import SynthSpec, write_synthetic_capture
+
+MAX_DRIFT_STOPS = 2.0
 
 
 def add_arguments(parser):
@@ -35,6 +39,12 @@ def add_arguments(parser):
     parser.add_argument("--held-out", type=int, default=d.held_out, help="held-out (and relit) views")
     parser.add_argument("--relit-env", dest="relit_environment", default=d.relit_environment,
                         help="environment for relit ground truth views ('sky2' = procedural)")
+    parser.add_argument("--exposure-drift", type=float, default=d.exposure_drift, metavar="STOPS",
+                        help="a phone's auto-exposure: the frames' exposure swings by +-STOPS over the capture, "
+                             "smoothly in frame index; the true gains go to gt/exposure.json and capture.json "
+                             "marks the frames as auto-exposed (reconstruct --exposure auto fits them)")
+    parser.add_argument("--white-balance-drift", type=float, default=d.white_balance_drift, metavar="STOPS",
+                        help="a white-balance drift with it: colour temperature (red against blue) and tint (green against both) each swing by +-STOPS")
     parser.add_argument("--format", dest="image_format", choices=["exr", "png"], default=d.image_format)
     parser.add_argument("--seed", type=int, default=d.seed)
     parser.add_argument("--overwrite", action="store_true", help="replace an existing output folder")
@@ -43,6 +53,10 @@ def add_arguments(parser):
 
 def spec_from_args(args) -> SynthSpec:
     values = {f.name: getattr(args, f.name) for f in dataclasses.fields(SynthSpec) if hasattr(args, f.name)}
+    for flag, key in (("--exposure-drift", "exposure_drift"), ("--white-balance-drift", "white_balance_drift")):
+        value = values.get(key, 0.0)
+        require(math.isfinite(value) and 0.0 <= value <= MAX_DRIFT_STOPS, None, f"{flag} is {value:g}",
+                f"give 0 to {MAX_DRIFT_STOPS:g} stops (the fit's gains stay within 1/4 to 4)")
     if values.get("albedo") != "pattern":
         values["albedo"] = [float(x) for x in str(values["albedo"]).split(",")]
     return SynthSpec(**values)

@@ -39,10 +39,12 @@ import numpy as np
 MODES = ("auto", "off", "per-frame")
 HELP = ("per-frame exposure and white balance (three gains a frame, solved between material stages): "
         "'auto' (the default) fits them for captures made from a video or photos (capture-from-video: a "
-        "phone exposes every frame on its own), not for imported datasets or rendered captures; "
+        "phone exposes every frame on its own) and for those whose capture.json marks the frames as "
+        "auto-exposed (synth --exposure-drift), not for imported datasets or other rendered captures; "
         "'per-frame' always; 'off' never")
 # capture.json provenance.source of the captures ``auto`` fits gains for: capture-from-video's
 AUTO_SOURCES = ("video", "images")
+AUTO_FLAG = "auto_exposure"  # capture.json provenance flag: frames exposed one by one (synth --exposure-drift)
 PRIOR = 0.05  # lambda = sigma^2 / tau^2: how strongly a frame's gain is pulled to the median
 LIMIT = float(np.log(4.0))  # |a| at most: gains within [1/4, 4]
 SOLVE_SIZE = 96  # long side of the renders a solve compares (px)
@@ -53,7 +55,8 @@ CONVENTION = "mean log-gain over frames = 0 per channel (geometric mean of the g
 
 def enabled(mode: str, capture) -> bool:
     """Whether ``--exposure mode`` fits gains for ``capture``: ``auto`` by what capture.json
-    says of its source, on for a phone's video or photos (``AUTO_SOURCES``). Rendered captures
+    says of its source, on for a phone's video or photos (``AUTO_SOURCES``) and for frames its
+    provenance marks as auto-exposed (``AUTO_FLAG``: a synthetic phone capture). Rendered captures
     share one exposure, and a fit costs them a little albedo accuracy; imported datasets are
     shot with fixed settings in the main (DTU's per-view brightness follows the camera's
     direction, light that a rig map does not carry, not the exposure: fitted gains took it up
@@ -62,7 +65,8 @@ def enabled(mode: str, capture) -> bool:
         raise ValueError(f"unknown exposure mode {mode!r}")
     if mode != "auto":
         return mode == "per-frame"
-    return (capture.provenance or {}).get("source") in AUTO_SOURCES
+    provenance = capture.provenance or {}
+    return provenance.get("source") in AUTO_SOURCES or provenance.get(AUTO_FLAG) is True
 
 
 class Exposure:
@@ -123,3 +127,22 @@ class Exposure:
         return {"model": "per-frame", "convention": CONVENTION, "prior": self.prior, "solves": self.solves,
                 "gains": {n: [round(float(x), 5) for x in row] for n, row in zip(self.names, g)},
                 "range": [[round(float(x), 5) for x in g.min(0)], [round(float(x), 5) for x in g.max(0)]]}
+
+
+def scoring_gains(fitted: dict | None, names: list[str]) -> dict[str, np.ndarray]:
+    """The gain each of ``names``' renders is scored at, from report.json ``exposure``
+    (``fitted``): a frame the run fitted, its own gains (the model: frame = g x render); any
+    other frame (held out, its exposure never seen) the fitted gains' median per channel, the
+    prior's centre; 1 for every frame when the run fitted none."""
+    gains = (fitted or {}).get("gains") or {}
+    if not gains:
+        return {n: np.ones(3, np.float32) for n in names}
+    median = np.median(np.array(list(gains.values()), np.float64), axis=0)
+    return {n: np.asarray(gains.get(n, median), np.float32) for n in names}
+
+
+def scoring_note(fitted: dict | None) -> str:
+    """How :func:`scoring_gains` scored a run's views (a report's words)."""
+    if not (fitted or {}).get("gains"):
+        return "gain 1 (one exposure fitted for all frames)"
+    return "fitted frames at their fitted gains, other frames at the fitted gains' median"

@@ -46,6 +46,10 @@ from .image import albedo_rmse, image_metrics
 RESULT = "result.ply"
 RENDER_SUFFIXES = (".exr", ".hdr", ".png", ".jpg", ".jpeg")
 VIEW_SETS = ("held_out", "relit")  # keys of a synthetic capture's ground_truth
+# how a run with per-frame gains (--exposure) is scored at the truth's held-out views, which
+# are rendered at gain 1: the gauge of the fitted gains (their geometric mean, and the true
+# gains' of synth --exposure-drift)
+HELD_OUT_GAIN = "gain 1: the gauge of the fitted gains (their geometric mean)"
 
 
 def _mesh(path: Path, role: str) -> Mesh:
@@ -161,6 +165,9 @@ def _run_view_metrics(report: dict, run: Path, capture, gt: Mesh, samples: int, 
         pa, ga = geo.corresponding_albedo(display, gt, samples, seed)
         report["albedo"] = {"rmse": albedo_rmse(pa, ga), "rmse_scaled": albedo_rmse(pa, ga, fit_scale=True)}
     lighting = fitted.from_run(run)
+    report_path = run / "report.json"
+    per_frame_gains = report_path.is_file() and bool(
+        (json.loads(report_path.read_text()).get("exposure") or {}).get("gains"))
     for name in [s for s in VIEW_SETS if capture.ground_truth.get(s)]:
         truth_views = load_capture(capture.root / capture.ground_truth[name])
         shown, scale = display, None
@@ -175,6 +182,8 @@ def _run_view_metrics(report: dict, run: Path, capture, gt: Mesh, samples: int, 
             write_image(out / f"{frame}.exr", image)
         scores = report.setdefault("views", {})[name] = _view_metrics(capture, out, name)
         scores["lighting"] = lighting.describe() if name == "held_out" else "the views' own map"
+        if name == "held_out" and per_frame_gains:
+            scores["exposure"] = HELD_OUT_GAIN
         if lighting.convention and name != "held_out":
             scores["albedo_scale"] = scale
         lit_truth = truth_views.environment is not None or truth_views.has_point_lights  # its passes render

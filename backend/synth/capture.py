@@ -19,7 +19,8 @@ from ..capture.model import Camera, Capture, Environment, Frame
 from ..geometry.mesh import Mesh, load_mesh, save_mesh
 from ..render.fields import VertexField
 from ..render.scene import RenderSettings, SceneRenderer
-from . import layout, procedural
+from ..lighting.exposure import AUTO_FLAG
+from . import drift, layout, procedural
 
 Y_UP_TO_Z_UP = np.array([[1.0, 0, 0, 0], [0, 0, -1, 0], [0, 1, 0, 0], [0, 0, 0, 1]])
 
@@ -45,6 +46,8 @@ class SynthSpec:
     max_depth: int = 4
     held_out: int = 4
     relit_environment: str = "sky2"  # "sky2" = a second procedural sky; or an HDR file
+    exposure_drift: float = 0.0  # stops: a phone's auto-exposure swing over the frames (backend.synth.drift)
+    white_balance_drift: float = 0.0  # stops: its white-balance drift (temperature and tint)
     image_format: str = "exr"  # exr (linear) or png (8-bit sRGB)
     seed: int = 0
 
@@ -92,10 +95,14 @@ def cornell_shapes(centre: np.ndarray, half: float) -> dict:
 
 
 def _write_view_set(root: Path, renderer, masker, cameras: list[Camera], lights, names: list[str],
-                    spec: SynthSpec, environment: Environment | None, emit, what: str) -> Capture:
+                    spec: SynthSpec, environment: Environment | None, emit, what: str,
+                    gains: np.ndarray | None = None) -> Capture:
+    """Render and write one set of views; ``gains`` (N, 3): each frame's camera response."""
     frames = []
     for i, (cam, name) in enumerate(zip(cameras, names)):
         rgba = renderer.render_numpy(i, seed=spec.seed * 1000 + i)
+        if gains is not None:
+            rgba[..., :3] *= gains[i].astype(rgba.dtype)
         if masker is not None:  # the room covers every pixel: mask the object alone
             rgba[..., 3] = masker.render_numpy(i, seed=i)[..., 3]
         image = root / "images" / f"{name}.{spec.image_format}"
@@ -134,14 +141,18 @@ def synthesize(spec: SynthSpec, out: Path, emit) -> Capture:
     settings = RenderSettings(spp=spec.spp, max_depth=spec.max_depth, integrator="path",
                               hide_emitters=True)
 
-    def render_set(root, cameras, names, what, environment, pixels, point_lights=True):
+    def render_set(root, cameras, names, what, environment, pixels, point_lights=True, gains=None):
         lights = [lights_of(c) if point_lights else [] for c in cameras]
         renderer = SceneRenderer(mesh, field, cameras, lights, environment, settings, extra, pixels, rgba=True)
         masker = SceneRenderer(mesh, field, cameras, lights, None, RenderSettings(spp=16, max_depth=2),
                                rgba=True) if extra else None
-        return _write_view_set(root, renderer, masker, cameras, lights, names, spec, environment, emit, what)
+        return _write_view_set(root, renderer, masker, cameras, lights, names, spec, environment, emit, what, gains)
 
-    capture = render_set(out, cams, [f"{i:04d}" for i in range(len(cams))], "train", env, env_pixels)
+    # the training frames only: held-out and relit views are the truth, at the gauge's gain 1
+    drifting = bool(spec.exposure_drift or spec.white_balance_drift)
+    gains = drift.drift_gains(len(cams), spec.exposure_drift, spec.white_balance_drift, spec.seed) if drifting else None
+    names = [f"{i:04d}" for i in range(len(cams))]
+    capture = render_set(out, cams, names, "train", env, env_pixels, gains=gains)
     gt = out / "gt"
     gt_mesh = mesh.copy()
     gt_mesh.vertex_colors = albedo
@@ -151,6 +162,9 @@ def synthesize(spec: SynthSpec, out: Path, emit) -> Capture:
                 "model": "lambert+ggx", "per_vertex": "gt/mesh.ply"}
     fsio.write_json(gt / "material.json", material)
     truth = {"mesh": "gt/mesh.ply", "material": "gt/material.json"}
+    if drifting:
+        fsio.write_json(gt / "exposure.json", drift.truth(names, gains, spec.exposure_drift, spec.white_balance_drift))
+        truth["exposure"] = "gt/exposure.json"
     if held:
         names = [f"held{i:02d}" for i in range(len(held))]
         held_env = env and Environment(gt / "held_out" / "env.exr", env.strength, env.rotation_z_deg)
@@ -167,6 +181,8 @@ def synthesize(spec: SynthSpec, out: Path, emit) -> Capture:
     capture.ground_truth = truth
     capture.provenance = {"source": "synth", "tool": f"shape-from-tracing {__version__}",
                           "spec": json.loads(json.dumps(asdict(spec)))}
+    if drifting:  # each frame exposed and white-balanced on its own, as a phone's: --exposure auto fits them
+        capture.provenance[AUTO_FLAG] = True
     if spec.cornell:
         capture.provenance["scene"] = {"cornell": {"centre": centre.tolist(), "half": 2.5 * distance}}
     save_capture(capture)
