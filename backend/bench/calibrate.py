@@ -17,7 +17,9 @@ from the armadillo under an HDR map, which shades itself (the HDR-lit case where
 pay), which a capture lit by an environment map is promised and its time budget read against
 (planning/presets.py, ``calibrated``). A kind that ``--scenes`` leaves out keeps its entries
 from the file being replaced, and so does a preset that ``--presets`` leaves out; every entry
-names its ``material`` and ``code`` (the commit it ran), and each kind its entries' materials.
+names its ``material``, ``code`` (the commit it ran) and ``machine`` (entries measured on
+different machines share the file; the top-level ``machine`` is the latest call's), and each
+kind its entries' materials.
 ``--material constant`` calibrates the one constant material instead (a row per preset of its
 own in the work folder's results; its file defaults to ``WORK/presets-constant.json`` and its
 record to ``calibrate-constant``, so the shipped file stays the default material's).
@@ -77,6 +79,12 @@ def entry_material(entry: dict) -> str:
     return entry.get("material") or (entry.get("settings") or {}).get("material") or "constant"
 
 
+def entry_machine(entry: dict, doc: dict | None = None) -> str | None:
+    """The machine a calibration entry was measured on: its own ``machine``, else (an entry
+    written before entries named it) that of ``doc``, the calibration it was read from."""
+    return entry.get("machine") or (doc or {}).get("machine")
+
+
 def calibration_rows(path: Path) -> list[dict]:
     """The rows of a results file, a later row replacing an earlier one of the same scene,
     setting and material (a preset calibrated with both materials keeps a row of each)."""
@@ -95,6 +103,8 @@ def entry(row: dict) -> dict:
            "novel_psnr": row.get("novel_psnr"), "relit_psnr": row.get("relit_psnr"),
            "peak_memory_mb": row.get("peak_mb"), "load_average": [row.get("load_before"), row.get("load_after")],
            "runs": row.get("repeats", 1), "settings": row["knobs"], "code": row.get("code"),
+           # entries measured on different machines share one file
+           "machine": machine_line(row["machine"]) if isinstance(row.get("machine"), dict) else row.get("machine"),
            # the run's levels and steps: planning/time_plan.py predicts other captures' times from them
            "iterations": row.get("iterations"), "levels": row.get("levels"), "faces": row.get("faces")}
     return out
@@ -158,7 +168,8 @@ def _keep(new: dict, old: dict | None) -> dict:
     """``new`` (a kind's calibration from this call's rows) with the presets it did not run
     taken from ``old`` (the same kind in the file being replaced), so one preset can be
     measured again alone; the commits and date then cover both."""
-    kept = {n: e for n, e in ((old or {}).get("presets") or {}).items() if n not in new["presets"]}
+    kept = {n: {**e, "machine": entry_machine(e, old)} for n, e in ((old or {}).get("presets") or {}).items()
+            if n not in new["presets"]}
     if not kept:
         return new
     # a kept entry names its own commit; one written before entries did stands for the old file's
@@ -340,7 +351,7 @@ def run(args) -> int:
 
 def record_rows(doc: dict) -> list[dict]:
     """The record's table: every entry of the calibration document ``doc``, by kind's scene and
-    preset, with the material and commit it was measured with (a file calibrated a preset at a
+    preset, with the material, machine and commit it was measured with (a file calibrated a preset at a
     time holds entries of several runs)."""
     out = []
     for kind, d in doc["kinds"].items():
@@ -348,6 +359,7 @@ def record_rows(doc: dict) -> list[dict]:
             faces = e.get("faces")
             shown = "" if faces is None else f"{faces / 1000:.0f}k" if faces >= 1000 else str(faces)
             out.append({"scene": KINDS[kind], "preset": name.capitalize(), "material": entry_material(e),
+                        "machine": entry_machine(e),
                         "wall min": _round(e.get("expected_minutes"), 2), "CPU min": _round(e.get("cpu_minutes"), 1),
                         "F1@0.01": _round(100 * e["expected_f1"], 2) if e.get("expected_f1") is not None else None,
                         "F1@0.005": _round(100 * e["f1_005"], 1) if e.get("f1_005") is not None else None,

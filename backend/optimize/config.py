@@ -92,6 +92,9 @@ class ReconstructConfig:
     polish_length: int = 2
     polish_warmup: int = 10  # steps over which the step grows to its full length
     polish_divergence: float = 0.25  # a validation loss this much above the best: back, step halved
+    # most material cycles once geometry has converged, and after each polish round (the
+    # schedule's own end usually comes first)
+    final_material_cycles: int = 12
     # the final texture stage at the frames' own size (backend.optimize.texture_stage): auto (when
     # the frames are larger than max_size), on or off; texture_size caps its images' long side
     # (None: the frames' own); texture_iterations: its most Adam iterations

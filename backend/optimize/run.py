@@ -298,9 +298,10 @@ class Reconstruction:
             if record.loss > record.loss_start * (1 - c.polish_tolerance):
                 break
 
-    def _finish_materials(self, most: int = 12) -> None:
-        """Once geometry has converged: material stages until their schedule ends."""
-        s = self.state
+    def _finish_materials(self) -> None:
+        """Once geometry has converged: material stages until their schedule ends, at most
+        ``config.final_material_cycles`` cycles."""
+        s, most = self.state, self.config.final_material_cycles
         views = self.viewset.at(self.config.max_size)
         self.appearance.finalise(s.mesh, self.material, views, self.budget)
         last = 0.0  # seconds of the last cycle: one that would end past the budget is not begun

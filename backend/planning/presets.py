@@ -7,11 +7,11 @@ import json
 from pathlib import Path
 
 PRESETS = {
-    # a quick look: two polish rounds, the second unless the first raised the loss (a round's
-    # gain in validation loss does not show what it buys in geometry, and a 1 % bar falling
-    # either side of the first made the length of a run unpredictable)
+    # a quick look: no polish rounds and two material cycles on the converged surface (with the
+    # staged material the polish and the long final cycles took two thirds of Draft's time for
+    # a few F1 points; docs/notes/2026-12-02-draft-preset.md)
     "draft": {"max_size": 96, "coarse_size": 48, "initial_faces": 2000, "max_levels": 3, "level_iterations": 120,
-              "validation_views": 4, "polish_rounds": 2, "polish_tolerance": 0.0},
+              "validation_views": 4, "polish_rounds": 0, "final_material_cycles": 2},
     # at most six levels; Final runs at least one more, then until the surface stops improving,
     # so that it never stops short of Balanced (a flat level can end refinement early)
     "balanced": {"max_levels": 6},

@@ -151,7 +151,7 @@ def predict(name: str, config, costs: StepCosts, pixels_at, n_views: int, staged
     (``PresetPlan.level_limit``; the later levels, the final stages and the polish get the time).
     With the staged material (the default) every level is followed by one material cycle of
     ``FitSettings.iterations`` one-view steps and a full-view evaluation, geometry convergence by
-    ``FINAL_MATERIAL_CYCLES`` cycles four times as long, and ``POLISH_ROUNDS`` (at most
+    ``FINAL_MATERIAL_CYCLES`` (at most ``final_material_cycles``) cycles four times as long, and ``POLISH_ROUNDS`` (at most
     ``polish_rounds``) polish rounds of ``POLISH_STEPS`` steps, each with a refinement cycle (not
     when an iteration cap ends the run with its levels). A
     fitted lighting (``estimate``, ``flash``) adds ``light_first_cycles`` cycles before level 0.
@@ -190,8 +190,9 @@ def predict(name: str, config, costs: StepCosts, pixels_at, n_views: int, staged
         last = plan[-1]
         p = pixels_at(c.max_size)
         long_cycle = cycle_seconds(costs, p, last.faces, n_views, scale=4)
-        material += FINAL_MATERIAL_CYCLES * long_cycle
-        phases.append(Phase("final", long_units, long_cycle / long_units, count=FINAL_MATERIAL_CYCLES))
+        finals = min(FINAL_MATERIAL_CYCLES, c.final_material_cycles)
+        material += finals * long_cycle
+        phases.append(Phase("final", long_units, long_cycle / long_units, count=finals))
         step = c.views_per_step * costs("gradient", p, last.faces) + 2 * val * costs("forward", p, last.faces) / c.eval_every
         steps = min(POLISH_STEPS, c.level_iterations * c.polish_length)
         rounds = min(POLISH_ROUNDS, c.polish_rounds)

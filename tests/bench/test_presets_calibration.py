@@ -199,6 +199,31 @@ def test_each_material_is_calibrated_apart_and_every_entry_names_its_own():
     assert rows[0]["wall min"] == 2.5 and rows[0]["F1@0.01"] == 93.0
 
 
+def test_every_entry_names_the_machine_it_was_measured_on():
+    first, second = {"cpu": "Alpha", "cores": 2, "variant": "llvm_ad_rgb"}, {"cpu": "Beta", "cores": 4, "variant": "llvm_ad_rgb"}
+    old = calibration([{**r, "machine": first} for r in _rows("dragon", MATERIAL, "abc", (("draft", 60, 92.0),
+                                                                                          ("balanced", 500, 97.0)))], first)
+    doc = calibration([{**r, "machine": second} for r in _rows("dragon", MATERIAL, "def", (("draft", 90, 93.0),))],
+                      second, previous=old)
+    # the file's machine is the latest call's; each entry keeps its own
+    assert doc["machine"] == "Beta, 4 cores, llvm_ad_rgb"
+    assert {n: e["machine"] for n, e in doc["presets"].items()} == {
+        "draft": "Beta, 4 cores, llvm_ad_rgb", "balanced": "Alpha, 2 cores, llvm_ad_rgb"}
+    assert [(r["preset"], r["machine"]) for r in record_rows(doc)] == [
+        ("Draft", "Beta, 4 cores, llvm_ad_rgb"), ("Balanced", "Alpha, 2 cores, llvm_ad_rgb")]
+    # an entry written before entries named it is the machine of the file it was read from
+    legacy = {k: v for k, v in old.items() if k != "kinds"}
+    legacy["presets"] = {n: {k: v for k, v in e.items() if k != "machine"} for n, e in legacy["presets"].items()}
+    again = calibration([{**r, "machine": second} for r in _rows("dragon", MATERIAL, "def", (("draft", 90, 93.0),))],
+                        second, previous=legacy)
+    assert again["presets"]["balanced"]["machine"] == "Alpha, 2 cores, llvm_ad_rgb"
+
+
+@pytest.mark.parametrize("kind", sorted(KINDS))
+def test_the_shipped_entries_name_their_machines(shipped, kind):
+    assert all(e.get("machine") for e in kind_entries(shipped, kind).values())
+
+
 def test_a_results_file_keeps_a_row_of_each_material(tmp_path):
     from backend.bench.sweep import append_result
 

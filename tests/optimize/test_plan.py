@@ -113,6 +113,20 @@ def test_a_fitted_lighting_is_charged_its_cycles_on_the_initial_mesh():
     assert b.geometry_s == pytest.approx(a.geometry_s)
 
 
+def test_the_final_material_cycles_and_the_polish_are_charged_as_configured():
+    """``final_material_cycles`` caps the long cycles on the converged surface the plan charges
+    (``FINAL_MATERIAL_CYCLES`` otherwise), and ``polish_rounds`` 0 charges no polish (Draft)."""
+    costs = plan.StepCosts([plan.Point(32, 1024, 500, 0.02, 0.01, 0.015), plan.Point(64, 4096, 500, 0.05, 0.02, 0.03),
+                            plan.Point(32, 1024, 4000, 0.03, 0.012, 0.02), plan.Point(64, 4096, 4000, 0.07, 0.03, 0.04)])
+    pixels_at = lambda size: size * size  # noqa: E731
+    base = {**PRESETS["draft"], "material": "staged"}
+    full = plan.predict("draft", ReconstructConfig(**{**base, "final_material_cycles": 12}), costs, pixels_at, 8, staged=True)
+    one = plan.predict("draft", ReconstructConfig(**{**base, "final_material_cycles": 1}), costs, pixels_at, 8, staged=True)
+    long_cycle = plan.cycle_seconds(costs, pixels_at(base["max_size"]), full.levels[-1].faces, 8, scale=4)
+    assert full.material_s - one.material_s == pytest.approx((plan.FINAL_MATERIAL_CYCLES - 1) * long_cycle)
+    assert PRESETS["draft"]["polish_rounds"] == 0 and one.polish_s == 0 and full.geometry_s == pytest.approx(one.geometry_s)
+
+
 def test_shadow_gradients_are_charged_at_the_samples_a_level_keeps(tmp_path):
     """Under an environment map with shadow gradients the plan times the geometry step with and
     without them and charges the count a level keeps (the arithmetic: test_shadow_samples.py)."""

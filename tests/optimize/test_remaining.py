@@ -51,9 +51,13 @@ def simulate(phases, step_scale: float = 1.0):
 
 
 def test_the_phases_add_up_to_the_plans_time():
-    config = ReconstructConfig(**PRESETS["draft"], material="staged")
+    config = ReconstructConfig(**{**PRESETS["draft"], "polish_rounds": 2}, material="staged")
     p = plan.predict("draft", config, COSTS, lambda size: size * size, 8, staged=True)
     assert [ph.kind for ph in p.phases] == ["level", "cycle"] * len(p.levels) + ["final", "polish"]
+    # Draft as it ships runs no polish round
+    shipped = plan.predict("draft", ReconstructConfig(**PRESETS["draft"], material="staged"), COSTS,
+                           lambda size: size * size, 8, staged=True)
+    assert [ph.kind for ph in shipped.phases][-1] == "final"
     assert sum(ph.seconds for ph in p.phases) == pytest.approx(p.geometry_s + p.material_s + p.polish_s)
     assert p.to_json()["phases"][0]["kind"] == "level"
     # the preset event's JSON gives the same estimate as the plan itself
@@ -123,7 +127,8 @@ def test_a_staged_runs_progress_counts_down_through_the_material_stages(tmp_path
     proc = run_cli("reconstruct", capture, "--out", run, "--preset", "draft", "--init", "sphere",
                    "--level-iterations", 20, "--max-levels", 2, "--max-size", 16, "--coarse-size", 16,
                    "--initial-faces", 320,
-                   "--material", "staged", timeout=900)
+                   "--material", "staged", timeout=900,
+                   env={"SFT_RECONSTRUCT_SETTINGS": json.dumps({"polish_rounds": 2})})  # Draft runs none
     assert proc.returncode == 0, proc.stderr[-2000:]
     events = [json.loads(line) for line in (run / "events.jsonl").read_text().splitlines()]
     preset = next(e for e in events if e["event"] == "preset" and e.get("plan"))
