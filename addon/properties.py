@@ -4,6 +4,7 @@ import bpy
 from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, PointerProperty, StringProperty
 
 from . import capture_state
+from .scene_cameras import show_labels
 from .io.preset_file import PRESETS
 
 QUALITY = (("auto", "Fit Budget", "The most accurate preset whose calibrated time fits the time budget, or the "
@@ -40,6 +41,11 @@ LIGHTING = (
 
 def _is_mesh(_self, obj) -> bool:
     return obj.type == "MESH"
+
+
+def _show_labels(self, context) -> None:
+    """Show Labels: the frame cameras' backgrounds switch between the frames and their label overlays."""
+    show_labels(context.scene, self.show_labels)
 
 
 def _plan_stale(self, _context) -> None:
@@ -121,6 +127,9 @@ class SFT_SceneSettings(bpy.types.PropertyGroup):
         name="Extra Arguments", default="",
         description="Further command-line options for 'python -m backend reconstruct' (they win over the "
                     "settings above)", update=_plan_stale)
+    show_labels: BoolProperty(name="Show Labels", default=False, update=_show_labels,
+                              description="The frame cameras show the material labels (Preview Material Labels) "
+                                          "as a colour overlay instead of the frames")
     preview_frame: IntProperty(name="Frame", default=0, min=0,
                                description="Input frame whose camera the preview uses")
     preview_env: StringProperty(

@@ -1,5 +1,7 @@
 """Capture cameras as Blender cameras (exact pinhole: lens, sensor width, shifts)."""
 
+from pathlib import Path
+
 import bpy
 import numpy as np
 from mathutils import Matrix
@@ -67,3 +69,19 @@ def create_cameras(context, info: CaptureInfo, show_frames: bool = True) -> list
     scene.camera = objects[0]
     configure_render(scene, info.frames[0].camera)
     return objects
+
+
+def show_labels(scene, show: bool) -> int:
+    """Each frame camera's background: its label overlay (``show``) or its frame. The count switched."""
+    collection = bpy.data.collections.get(COLLECTION)
+    switched = 0
+    for obj in collection.objects if collection else ():
+        path = obj.get("sft_labels" if show else "sft_image")
+        if obj.type != "CAMERA" or not path or not Path(path).is_file():
+            continue
+        backgrounds = obj.data.background_images
+        background = backgrounds[0] if len(backgrounds) else backgrounds.new()
+        background.image = bpy.data.images.load(str(path), check_existing=True)
+        obj.data.show_background_images = True
+        switched += 1
+    return switched

@@ -26,12 +26,13 @@ COMMANDS = {
     "evaluate": "Compare a reconstruction with ground truth: Chamfer, F1, PSNR/SSIM, albedo RMSE.",
     "capture-from-video": "Turn a phone video, masks and an HDR map into a capture (frames, SfM, lighting).",
     "bench": "Benchmarks: geometry, material, sweep, calibrate, stability, effects, hdr, realworld, sfm.",
+    "labels": "Write the material labels Reconstruct would cluster as colour overlays on the frames.",
     "check": "Report whether this interpreter can run the backend (for the Blender add-on).",
     "demo": "Synthesise the built-in procedural object, reconstruct it and print the metrics.",
 }
 
 
-RENDERS = {"synth", "reconstruct", "evaluate", "capture-from-video"}  # and a named benchmark: bench NAME
+RENDERS = {"synth", "reconstruct", "evaluate", "capture-from-video", "labels"}  # and a named benchmark: bench NAME
 
 
 def _positionals(argv: list[str]) -> list[str]:

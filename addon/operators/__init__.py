@@ -4,10 +4,10 @@ bad input (``report({'ERROR'}, ...)``), leaving the scene unchanged."""
 import bpy
 
 from .. import jobs
-from . import backend, cameras, capture, export, modal, preset_plan, preview, reconstruct
+from . import backend, cameras, capture, export, labels, modal, preset_plan, preview, reconstruct
 
 CLASSES = (*backend.CLASSES, *capture.CLASSES, *cameras.CLASSES, *reconstruct.CLASSES,
-           *preview.CLASSES, *export.CLASSES, *preset_plan.CLASSES, *modal.CLASSES)
+           *preview.CLASSES, *labels.CLASSES, *export.CLASSES, *preset_plan.CLASSES, *modal.CLASSES)
 
 
 def register():

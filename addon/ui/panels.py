@@ -162,6 +162,9 @@ class SFT_PT_reconstruct(_Panel, bpy.types.Panel):
             col.label(text="No lighting: Import Environment Map", icon="ERROR")
         if not running:
             row = layout.row(align=True)
+            row.operator("sft.preview_labels", icon="COLOR")
+            row.prop(sft, "show_labels", text="", icon="HIDE_OFF")
+            row = layout.row(align=True)
             row.operator("sft.reconstruct", icon="PLAY")
             if facts.resumable:
                 row.operator("sft.reconstruct_resume", icon="FILE_REFRESH")

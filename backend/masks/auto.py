@@ -10,7 +10,7 @@ import numpy as np
 
 from ..errors import InputError, require
 from .cameras import View, views_of
-from .consistency import carve, iou, project_hull
+from .consistency import Votes, iou, project_hull
 from .region import NO_OBJECT_FIX, Region, object_region
 from .segment import OnnxSegmenter, SeedOptions, grabcut, hull_polygon, mask_seeds, region_seeds
 
@@ -25,7 +25,8 @@ class MaskOptions:
     grid: int = 80  # voxels along the hull box's longer side
     tolerance_share: float = 0.1  # views that may disagree with a kept voxel (share, at least one)
     edge: float = 0.01  # a region (0.5..99.5 percentiles of its points) this near the border is cut off
-    rounds: int = 2  # GrabCut rounds: the region's seeds, then the visual hull's projection
+    rounds: int = 2  # GrabCut rounds: the region's seeds, then the strict visual hull's projection
+    strict_tolerance: int = 0  # views that may disagree with a voxel of the hull that seeds a round
     min_frames: int = 3
 
 
@@ -113,16 +114,25 @@ def make_masks(frames: dict[str, np.ndarray], sfm, options: MaskOptions | None =
     rounds = 1 if segmenter is not None else options.rounds
     scores = {}
     for r in range(rounds):
-        hull3d = _hull(views, masks, obj, options)
-        projected = {v.name: project_hull(hull3d, v) for v in views if v.name in masks}
-        scores = {n: iou(masks[n], projected[n]) for n in masks}
+        votes = _votes(views, masks, obj, options)
+        tolerance = max(1, int(round(options.tolerance_share * len(masks))))
+        hull3d = votes.hull(tolerance=tolerance)
+        scores = {v.name: iou(masks[v.name], project_hull(hull3d, v)) for v in views if v.name in masks}
         if r + 1 == rounds:
             break
-        for v in views:  # the hull's projection seeds the next round
-            if v.name in masks and scores[v.name] >= options.min_iou:
-                voxel_px = hull3d.voxel * v.fx / max(float(np.linalg.norm(v.centre - obj.mean(0))), 1e-9)
-                labels = mask_seeds((v.height, v.width), projected[v.name], max(3, int(round(2 * voxel_px))))
-                _stamp(labels, fg_of[v.name], bg_of[v.name], options.seeds.feature_radius)
+        # the next round is seeded by the strict hull of the frames that agree with the tolerant
+        # one, each frame's without its own mask (see .consistency)
+        confident = [n for n in masks if scores[n] >= options.min_iou]
+        if len(confident) < options.min_frames:
+            break
+        for v in views:
+            if v.name in masks:
+                strict = votes.hull(confident, options.strict_tolerance, exclude=v.name)
+                bound = project_hull(strict, v)
+                if not bound.any():
+                    continue
+                voxel_px = strict.voxel * v.fx / max(float(np.linalg.norm(v.centre - obj.mean(0))), 1e-9)
+                labels = mask_seeds((v.height, v.width), bound, max(3, int(round(2 * voxel_px))), masks[v.name])
                 masks[v.name] = grabcut(frames[v.name], labels, options.seeds.iterations, fg_of[v.name],
                                         options.seeds.smooth)
     for n in list(masks):
@@ -142,19 +152,8 @@ def make_masks(frames: dict[str, np.ndarray], sfm, options: MaskOptions | None =
     return report
 
 
-def _hull(views: list[View], masks: dict[str, np.ndarray], obj: np.ndarray, options: MaskOptions):
-    """The masks' visual hull in a box round the object points, grown by half its size."""
+def _votes(views: list[View], masks: dict[str, np.ndarray], obj: np.ndarray, options: MaskOptions) -> Votes:
+    """The masks' votes on a box round the object points, grown by half its size."""
     lo, hi = obj.min(0), obj.max(0)
     grow = 0.5 * float(np.max(hi - lo))
-    tolerance = max(1, int(round(options.tolerance_share * len(masks))))
-    return carve(views, masks, lo - grow, hi + grow, options.grid, tolerance)
-
-
-def _stamp(labels: np.ndarray, fg_uv: np.ndarray, bg_uv: np.ndarray, radius: int) -> None:
-    import cv2  # bpy must be imported before cv2 in one process (tests, scripts)
-
-    h, w = labels.shape
-    for uv, value in ((bg_uv, cv2.GC_BGD), (fg_uv, cv2.GC_FGD)):
-        for x, y in np.floor(np.asarray(uv).reshape(-1, 2)).astype(int):
-            if 0 <= x < w and 0 <= y < h:
-                cv2.circle(labels, (int(x), int(y)), radius, int(value), -1)
+    return Votes(views, masks, lo - grow, hi + grow, options.grid)

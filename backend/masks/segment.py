@@ -64,17 +64,24 @@ def region_seeds(shape: tuple[int, int], hull: np.ndarray, fg_uv: np.ndarray, bg
     return labels
 
 
-def mask_seeds(shape: tuple[int, int], mask: np.ndarray, band: int) -> np.ndarray:
+def mask_seeds(shape: tuple[int, int], mask: np.ndarray, band: int, within: np.ndarray | None = None) -> np.ndarray:
     """GrabCut's labels from a mask (the visual hull's projection): sure foreground ``band``
-    pixels inside its edge, sure background ``band`` pixels outside, probable between."""
+    pixels inside its edge, sure background ``band`` pixels outside, probable between. With
+    ``within`` (the frame's previous mask) foreground, sure or probable, is also inside it (eroded
+    alike for the sure part): the hull bounds the object from outside only."""
     import cv2  # see the note at the top
 
     m = (np.asarray(mask) > 0.5).astype(np.uint8)
     kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * band + 1, 2 * band + 1))
     inner, outer = cv2.erode(m, kernel), cv2.dilate(m, kernel)
+    probable = m > 0
+    if within is not None:
+        w = (np.asarray(within) > 0.5).astype(np.uint8)
+        probable &= w > 0
+        inner = inner & cv2.erode(w, kernel)
     labels = np.full(shape, cv2.GC_BGD, np.uint8)
     labels[outer > 0] = cv2.GC_PR_BGD
-    labels[m > 0] = cv2.GC_PR_FGD
+    labels[probable] = cv2.GC_PR_FGD
     labels[inner > 0] = cv2.GC_FGD
     return labels
 

@@ -15,9 +15,10 @@ from PIL import Image
 from scipy import sparse
 from scipy.cluster.vq import kmeans2
 
-from ..capture.images import read_mask
+from ..capture.images import linear_to_srgb, read_linear_rgb, read_mask
 from ..capture.model import Camera, Capture
 from ..errors import InputError, require
+from ..fsio import atomic_dir
 from ..geometry.mesh import Mesh
 from ..geometry.raycast import RayCaster
 from .meshcolors import unique_edges
@@ -237,3 +238,43 @@ def face_labels(mesh: Mesh, cameras: list[Camera], label_images: list[np.ndarray
             return FaceLabels(np.zeros(mesh.n_faces, np.int64), [1], 0.0, 0, 0)
         label_images = cluster_labels(images, object_masks, n_materials, seed)
     return vote_face_labels(mesh, cameras, label_images)
+
+
+PALETTE = np.array([[230, 25, 75], [60, 180, 75], [255, 225, 25], [0, 130, 200], [245, 130, 48], [145, 30, 180],
+                    [70, 240, 240], [240, 50, 230]], np.float64)  # label 1, 2, ... (cycled)
+
+
+def label_overlay(rgb: np.ndarray, labels: np.ndarray, alpha: float = 0.6) -> np.ndarray:
+    """``rgb`` (uint8) with each labelled pixel blended by ``alpha`` towards its label's
+    :data:`PALETTE` colour; background (label 0) darkened to a third."""
+    out = np.asarray(rgb, np.float64)[..., :3] / 3.0
+    obj = labels > 0
+    colour = PALETTE[(labels[obj] - 1) % len(PALETTE)]
+    out[obj] = (1 - alpha) * np.asarray(rgb, np.float64)[..., :3][obj] + alpha * colour
+    return np.clip(np.round(out), 0, 255).astype(np.uint8)
+
+
+def write_label_previews(capture: Capture, n_materials: int | str, out: Path) -> dict:
+    """The material labels Reconstruct would cluster (``cluster_labels`` on the frames' object
+    pixels; ``n_materials`` a count or "auto", :func:`choose_material_count`) as colour
+    overlays, one PNG per frame named as the frame, in ``out`` (replaced whole, atomically).
+    The capture's own material masks, when it has them, are shown instead. Raises InputError
+    when a frame has no object mask."""
+    missing = [f for f in capture.frames if f.mask is None]
+    require(not missing, missing[0].image if missing else None, "this frame has no object mask: the labels "
+            "are clustered on object pixels", "import or make the object masks first (Solve Cameras)")
+    images = [read_linear_rgb(f.image) for f in capture.frames]
+    masks = [read_mask(f.mask) for f in capture.frames]
+    labels = load_material_labels(capture)
+    source = "material masks" if labels is not None else "colour clusters"
+    if labels is None:
+        k = choose_material_count(images, masks) if n_materials == "auto" else int(n_materials)
+        labels = cluster_labels(images, masks, max(1, k))
+    k = len(set(np.unique(np.concatenate([np.unique(li) for li in labels]))) - {0})
+    with atomic_dir(out, replace=True) as tmp:
+        for f, img, lab in zip(capture.frames, images, labels):
+            rgb = np.round(255 * np.clip(linear_to_srgb(np.clip(img[..., :3], 0, 1)), 0, 1)).astype(np.uint8)
+            Image.fromarray(label_overlay(rgb, lab)).save(tmp / f"{f.name}.png")
+    shares = np.bincount(np.concatenate([li[li > 0].ravel() for li in labels]), minlength=k + 1)[1:]
+    return {"materials": int(k), "frames": len(labels), "source": source, "folder": str(out),
+            "shares": [round(float(s) / max(1, int(shares.sum())), 4) for s in shares]}
