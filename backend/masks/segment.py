@@ -106,6 +106,7 @@ def grabcut(rgb: np.ndarray, labels: np.ndarray, iterations: int, keep_uv: np.nd
     bgr = np.ascontiguousarray(np.asarray(rgb, np.uint8)[y0:y1, x0:x1, ::-1])
     if smooth > 0:  # sensor (or render) noise widens both colour models until they overlap
         bgr = cv2.GaussianBlur(bgr, (0, 0), smooth)
+    cv2.setRNGSeed(0)  # GrabCut's colour models start from OpenCV's global random state: same frame, same mask
     try:
         cv2.grabCut(bgr, crop, None, bgd, fgd, iterations, cv2.GC_INIT_WITH_MASK)
     except cv2.error:  # one class has too few pixels to model: keep the seeds
