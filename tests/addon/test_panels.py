@@ -92,8 +92,8 @@ def test_panels_draw_in_an_empty_scene(context):
             "Times measured on a point-lit object; HDR-lit captures take longer") in labels
     assert any(label.startswith("Lighting estimated with the material") for label in labels)  # the default
     props = [entry[1] for entry in log["SFT_PT_reconstruct"] if entry[0] == "prop"]
-    assert props == ["preset", "time_budget", "track_accuracy", "material", "init", "effects", "lighting"], \
-        "the method's settings, no free text"
+    assert props == ["preset", "time_budget", "track_accuracy", "material", "init", "effects", "lighting",
+                     "show_labels"], "the method's settings and the labels overlay's toggle, no free text"
     context.scene.sft.lighting = "CAPTURED"
     labels = [e[1] for e in draw("SFT_PT_reconstruct", context) if e[0] == "label"]
     assert "No lighting: Import Environment Map" in labels

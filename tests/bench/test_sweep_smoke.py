@@ -82,7 +82,7 @@ def test_calibration_file_from_rows(swept, tmp_path):
     rows = sweep.load_results(swept / "work" / "results.jsonl")
     as_presets = [dict(r, scene="dragon", name=n) for r, n in zip(sorted(rows, key=lambda r: r["name"]),
                                                                  ("draft", "balanced"))]
-    doc = calibrate.calibration(as_presets, as_presets[0]["machine"])
+    doc = calibrate.calibration(as_presets, as_presets[0]["machine"], material=calibrate.row_material(as_presets[0]))
     assert isinstance(doc["machine"], str) and "cores" in doc["machine"]
     assert set(doc["presets"]) == {"draft", "balanced"}
     draft = doc["presets"]["draft"]
