@@ -2,7 +2,8 @@
 Import Video -> Import Masks -> Import Environment Map -> Solve Cameras -> Reconstruct ->
 Relit Preview -> Export glTF, on a small orbit video the project renders itself (Cycles,
 an icosphere with a procedural texture, under the project's procedural sky); the headless
-script's journey, without the HDR map (Lighting Estimate). Only the
+script's journey, without the HDR map (Lighting Estimate); the journey without masks (Masks
+Automatic: made from the solved cameras). Only the
 reconstruction's sizes shrink, through $SFT_RECONSTRUCT_SETTINGS (the backend's own
 setting), never through Extra Arguments."""
 
@@ -230,3 +231,50 @@ def test_the_headless_script_runs_the_journey_without_an_hdr_map(orbit, tmp_path
         assert slot in textures
         if channels.get(name) == "colors":
             assert textures[slot][:, band].std() > 0.005, f"the fitted {name} is constant in result.glb"
+
+
+def _iou(a: np.ndarray, b: np.ndarray) -> float:
+    return float((a & b).sum() / max(1, (a | b).sum()))
+
+
+def test_the_journey_without_masks_makes_them_from_the_solved_cameras(context, extension, orbit, tmp_path,
+                                                                      monkeypatch, capfd):
+    """Masks = Automatic with none imported: Solve Cameras makes them from its SfM result (the
+    object's points, GrabCut, the visual hull's check); they match the video's true masks, and
+    the rest of the journey runs on them."""
+    monkeypatch.setenv("SFT_RECONSTRUCT_SETTINGS", json.dumps(TINY))
+    video = shutil.copy(orbit / "orbit" / "orbit.mp4", tmp_path / "orbit.mp4")
+    sft = context.scene.sft
+    assert sft.masks_mode == "AUTOMATIC"
+    assert bpy.ops.sft.import_video(filepath=str(video)) == {"FINISHED"}
+    capture = Path(sft.capture_dir)
+    assert not list((capture / "masks").glob("*.png")), "no masks were imported"
+    assert bpy.ops.sft.import_environment(filepath=str(orbit / "sky.exr")) == {"FINISHED"}
+
+    assert bpy.ops.sft.solve_cameras() == {"FINISHED"}
+    text = _reports(capfd)
+    solved = Path(sft.capture_dir)
+    doc = json.loads((solved / "capture.json").read_text())
+    source = {f["name"]: f["source_frame"] for f in json.loads((capture / "frames.json").read_text())["frames"]}
+    frames = [f for f in doc["frames"] if f.get("mask")]
+    assert len(frames) >= 0.7 * len(source), text[-2000:]  # frames whose mask disagrees with the hull are dropped
+    scores = []
+    for frame in frames:
+        made = np.asarray(Image.open(solved / frame["mask"]).convert("L")) > 127
+        truth = Image.open(orbit / "orbit" / "masks" / f"{source[frame['name']]:04d}.png").convert("L")
+        truth = np.asarray(truth.resize(made.shape[::-1], Image.NEAREST)) > 127
+        scores.append(_iou(made, truth))
+    assert np.mean(scores) >= 0.85 and min(scores) >= 0.6, scores
+
+    assert bpy.ops.sft.reconstruct() == {"FINISHED"}
+    assert "reconstruction done" in _reports(capfd)
+    run = Path(sft.run_dir)
+    assert (run / "result.glb").is_file()
+    assert len(bpy.data.objects["Reconstruction"].data.polygons) > 100
+    assert bpy.ops.sft.relit_preview() == {"FINISHED"}
+    side = np.asarray(Image.open(next(p for p in (run / "preview").glob("*.png")
+                                      if not p.stem.endswith("_render"))).convert("RGB"))
+    assert side[:, : side.shape[1] // 2].std() > 3, "empty relit render"
+    glb = tmp_path / "journey.glb"
+    assert bpy.ops.sft.export_gltf(filepath=str(glb)) == {"FINISHED"}
+    assert _glb_json(glb)["materials"][0]["pbrMetallicRoughness"]["baseColorTexture"] is not None
