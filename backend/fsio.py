@@ -65,8 +65,16 @@ def write_text(path, text: str) -> None:
     write_bytes(path, text.encode())
 
 
+def _plain(value):
+    """A NumPy scalar as the Python number or bool it holds (``json`` knows only those)."""
+    item = getattr(value, "item", None)
+    if item is not None and getattr(value, "shape", None) == ():
+        return item()
+    raise TypeError(f"Object of type {type(value).__name__} is not JSON serializable")
+
+
 def write_json(path, obj, indent: int | None = 2) -> None:
-    write_text(path, json.dumps(obj, indent=indent, allow_nan=False) + "\n")
+    write_text(path, json.dumps(obj, indent=indent, allow_nan=False, default=_plain) + "\n")
 
 
 @contextlib.contextmanager

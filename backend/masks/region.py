@@ -52,7 +52,7 @@ class Region:
 
     def summary(self) -> dict:
         return {"object_points": int(self.inside.sum()), "background_points": int(self.background.sum()),
-                "ground_plane": self.ground is not None, "focus": self.focus_found,
+                "ground_plane": self.ground is not None, "focus": bool(self.focus_found),
                 "orbit_radius": float(self.frame.radius)}
 
 
