@@ -279,12 +279,12 @@ def side_by_side(render_path: Path, frame_path: Path, out_path: Path) -> tuple[i
     return 2 * w, h
 
 
-def show(path: Path) -> bpy.types.Image:
-    """Load (or reload) the preview as the image "SfT Relit Preview"."""
-    image = bpy.data.images.get(IMAGE_NAME)
+def show(path: Path, name: str = IMAGE_NAME) -> bpy.types.Image:
+    """Load (or reload) the image file ``path`` as the image ``name`` (default "SfT Relit Preview")."""
+    image = bpy.data.images.get(name)
     if image is None:
         image = bpy.data.images.load(str(path))
-        image.name = IMAGE_NAME
+        image.name = name
     else:
         image.filepath = str(path)
         image.reload()

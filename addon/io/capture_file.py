@@ -81,6 +81,17 @@ def blender_camera(cam: dict, path: Path | None = None, where: str = "camera") -
                          pixel_aspect=fy / fx)
 
 
+def _document(path: Path, fmt: str, fix_json: str, fix_format: str) -> dict:
+    """The JSON object in ``path`` whose ``format`` is ``fmt``; AddonInputError (with the fix)
+    when it is not JSON or not that format."""
+    try:
+        doc = json.loads(path.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as err:
+        raise AddonInputError(path, "invalid JSON", fix_json) from err
+    require(isinstance(doc, dict) and doc.get("format") == fmt, path, f"'format' is not '{fmt}'", fix_format)
+    return doc
+
+
 def read_capture(path: str | Path) -> CaptureInfo:
     """Read a capture folder (or its ``capture.json``) without touching the images."""
     path = Path(path)
@@ -88,12 +99,7 @@ def read_capture(path: str | Path) -> CaptureInfo:
         path = path / FILENAME
     require(path.is_file(), path, "capture not found", "give a capture folder with capture.json "
             "(convert other layouts with 'python -m backend import')")
-    try:
-        doc = json.loads(path.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as err:
-        raise AddonInputError(path, "invalid JSON", "fix or regenerate the file") from err
-    require(isinstance(doc, dict) and doc.get("format") == FORMAT, path,
-            f"'format' is not '{FORMAT}'", "write the capture with 'python -m backend import'")
+    doc = _document(path, FORMAT, "fix or regenerate the file", "write the capture with 'python -m backend import'")
     root = path.parent
     frames = []
     for i, fd in enumerate(doc.get("frames") or []):
@@ -123,12 +129,8 @@ def with_refined_cameras(info: CaptureInfo, run: str | Path | None) -> CaptureIn
     path = Path(run) / REFINED_FILENAME if run is not None else None
     if path is None or not path.is_file():
         return info
-    try:
-        doc = json.loads(path.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as err:
-        raise AddonInputError(path, "invalid JSON", "delete it to preview with the capture's cameras") from err
-    require(isinstance(doc, dict) and doc.get("format") == REFINED_FORMAT, path,
-            f"'format' is not '{REFINED_FORMAT}'", "delete it to preview with the capture's cameras")
+    fix = "delete it to preview with the capture's cameras"
+    doc = _document(path, REFINED_FORMAT, fix, fix)
     refined = {str(fd.get("name")): blender_camera(fd.get("camera") or {}, path, f"frame {fd.get('name')}")
                for fd in doc.get("frames") or [] if isinstance(fd, dict)}
     frames = [FrameInfo(f.name, f.image, refined.get(f.name, f.camera), f.mask, f.lights) for f in info.frames]

@@ -12,7 +12,7 @@ from pathlib import Path
 import bpy
 from bpy.props import IntProperty
 
-from .. import jobs
+from .. import jobs, preview
 from ..io.errors import require
 from ..preferences import backend_python
 from ..scene_cameras import COLLECTION, show_labels
@@ -65,13 +65,7 @@ class SFT_OT_preview_labels(JobModal, bpy.types.Operator):
         shown_on = show_labels(context.scene, True)  # also when Show Labels was on already
         overlays = sorted(self.folder.glob("*.png"))
         shown = overlays[min(context.scene.sft.preview_frame, len(overlays) - 1)]
-        image = bpy.data.images.get(IMAGE_NAME)
-        if image is None:
-            image = bpy.data.images.load(str(shown))
-            image.name = IMAGE_NAME
-        else:
-            image.filepath = str(shown)
-            image.reload()
+        image = preview.show(shown, IMAGE_NAME)
         for area in context.screen.areas if context.screen else ():
             if area.type == "IMAGE_EDITOR":
                 area.spaces.active.image = image
