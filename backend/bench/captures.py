@@ -23,7 +23,12 @@ Scores. Each row's PSNR is on sRGB within the frame's mask (the whole frame with
 the render at SIZE px and ``--spp``, as ``--track-accuracy`` scores (which renders fewer
 samples; its last point is printed beside it). The held-out figure is the mean over the
 held-out rows. A run that fitted per-frame gains is scored at them (fitted frames at their
-own, held-out frames at the gains' median: ``scored_at``). Results: ``OUT/captures.json`` and a printed table."""
+own, held-out frames at the gains' median: ``scored_at``). Results: ``OUT/captures.json`` and a printed table.
+
+``--pieces`` runs each capture once per named model instead (``PIECES``): ``base`` with every
+real-camera piece off (no per-frame exposure, no camera refinement, the capture's fixed
+lighting, no texture stage), each piece alone on top of it, and ``all`` of them together, in
+``OUT/<name>/<piece>/``; the record ``captures-pieces`` has one row per capture and piece."""
 
 from __future__ import annotations
 
@@ -43,7 +48,7 @@ from ..capture.load import load_capture
 from ..geometry.mesh import load_mesh
 from ..lighting import exposure, fitted
 from ..lighting.modes import MAP_FRAME
-from ..metrics.image import psnr
+from ..metrics.image import psnr, ssim
 from ..optimize.views import ViewSet
 from ..render.scene import RenderSettings, SceneRenderer
 from ..render.views import display_field
@@ -69,6 +74,17 @@ CAPTURES = {
 }
 
 
+BASE = ("--exposure", "off", "--refine-cameras", "off", "--texture-stage", "off")
+PIECES = {
+    "base": BASE,
+    "exposure": ("--exposure", "per-frame", "--refine-cameras", "off", "--texture-stage", "off"),
+    "cameras": ("--exposure", "off", "--refine-cameras", "on", "--texture-stage", "off"),
+    "lighting": (*BASE, "--lighting", "auto"),
+    "texture": ("--exposure", "off", "--refine-cameras", "off", "--texture-stage", "on"),
+    "all": ("--exposure", "per-frame", "--refine-cameras", "on", "--texture-stage", "on", "--lighting", "auto"),
+}
+
+
 def add_arguments(parser) -> None:
     parser.add_argument("--out", type=Path, default=Path("bench_captures"), help="folder for the captures and runs")
     parser.add_argument("--captures", default=",".join(CAPTURES), help="which, comma-separated (default: %(default)s)")
@@ -79,6 +95,8 @@ def add_arguments(parser) -> None:
     parser.add_argument("--fitted", type=int, default=2, help="fitted frames shown beside the held-out ones")
     parser.add_argument("--reconstruct-args", default="", help="further reconstruct options, quoted")
     parser.add_argument("--rerun", action="store_true", help="run again when OUT/<name>/run has a result")
+    parser.add_argument("--pieces", default="", help="comma-separated models to compare per capture, of "
+                        f"{', '.join(PIECES)} ('all' for every piece together); empty: the defaults once")
 
 
 def _backend(*args) -> None:
@@ -118,6 +136,7 @@ def render_rows(capture_dir: Path, run_dir: Path, size: int, spp: int, fitted_ro
         photo = capture.camera_response.radiance(read_linear_rgb(frames[v.name].image))
         photo = np.asarray(Image.fromarray(_srgb8(photo)).resize((v.camera.width, v.camera.height), Image.BOX))
         rows.append({"frame": v.name, "held_out": v.name in held, "psnr": float(psnr(render, v.target, v.mask)),
+                     "ssim": float(ssim(render, v.target, v.mask)),
                      "photo": photo, "render": render, "target": v.target, "mask": v.mask})
     return rows
 
@@ -151,9 +170,13 @@ def lighting_args(spec: RealCapture, extra: str) -> list[str]:
     return words if named else ["--lighting", spec.lighting, *words]
 
 
-def one(name: str, spec: RealCapture, args) -> dict:
-    folder = args.out / name
-    capture, run = folder / "capture", folder / "run"
+def one(name: str, spec: RealCapture, args, piece: str | None = None) -> dict:
+    """Import (once per capture), reconstruct, score and draw the sheet of one capture; with
+    ``piece``, in ``OUT/<name>/<piece>/`` with that model's options before ``--reconstruct-args``."""
+    capture = args.out / name / "capture"
+    folder = args.out / name / piece if piece else args.out / name
+    run = folder / "run"
+    extra = " ".join([*PIECES[piece], args.reconstruct_args]) if piece else args.reconstruct_args
     start = time.perf_counter()
     if not (capture / "capture.json").is_file():
         _backend("import", SHARED_DATA / spec.source, "--out", capture, "--max-size", args.import_size, "--overwrite")
@@ -163,28 +186,31 @@ def one(name: str, spec: RealCapture, args) -> dict:
         _backend("reconstruct", capture, "--out", run, "--overwrite", "--time-budget", args.minutes,
                  "--max-size", args.max_size,
                  "--track-accuracy", "--held-out-every", spec.held_out_every,
-                 *lighting_args(spec, args.reconstruct_args))
+                 *lighting_args(spec, extra))
     reconstructed = time.perf_counter()
     report = json.loads((run / "report.json").read_text())
     rows = render_rows(capture, run, args.max_size, args.spp, args.fitted)
     held = [r["psnr"] for r in rows if r["held_out"]]
     fit = [r["psnr"] for r in rows if not r["held_out"]]
+    held_ssim = [r["ssim"] for r in rows if r["held_out"]]
     used = fitted.from_run(run)
     frame = used.environment.frame if used.environment is not None else None
     lighting = "rig" if frame == MAP_FRAME["rig"] else used.model
-    title = (f"{spec.about}; {args.minutes:g} min, lighting {lighting}; "
+    title = (f"{spec.about}; {piece + ', ' if piece else ''}{args.minutes:g} min, lighting {lighting}; "
              f"held-out {np.mean(held):.2f} dB" if held else f"{spec.about}; nothing held out")
     write_sheet(folder / "contact_sheet.png", rows, title)
     points = (report.get("accuracy_time") or {}).get("points") or []
     return {
-        "capture": name, "about": spec.about, "frames": len(load_capture(capture).frames),
+        "capture": name, "piece": piece, "about": spec.about, "frames": len(load_capture(capture).frames),
         "held_out_every": spec.held_out_every, "held_out_frames": [r["frame"] for r in rows if r["held_out"]],
         "held_out_psnr": float(np.mean(held)) if held else None,
         "held_out_psnr_each": {r["frame"]: round(r["psnr"], 3) for r in rows if r["held_out"]},
+        "held_out_ssim": float(np.mean(held_ssim)) if held_ssim else None,
         "fitted_psnr": float(np.mean(fit)) if fit else None,
         "scored_at": exposure.scoring_note(report.get("exposure")),
         "tracked_last_psnr": points[-1]["psnr"] if points else None,
         "lighting": lighting, "environment_map": (run / "environment.exr").is_file(),
+        "lighting_choice": report.get("lighting_choice"), "cameras_refined": report.get("cameras_refined"),
         "faces": report["result"]["faces"], "genus": report["result"]["genus"],
         "minutes": {"import": round((imported - start) / 60, 2), "reconstruct": round((reconstructed - imported) / 60, 2),
                     "sheet": round((time.perf_counter() - reconstructed) / 60, 2)},
@@ -202,17 +228,51 @@ def run(args) -> int:
     if missing:
         print(f"error: {missing[0]}: shared data not found; set SFT_SHARED_DATA to the data folder", file=sys.stderr)
         return 2
+    pieces = [p.strip() for p in args.pieces.split(",") if p.strip()]
+    bad = [p for p in pieces if p not in PIECES]
+    if bad:
+        print(f"error: unknown piece {bad[0]!r}: give some of {', '.join(PIECES)}", file=sys.stderr)
+        return 2
     args.out.mkdir(parents=True, exist_ok=True)
     results, failed = [], 0
     for name in names:
-        print(f"[{name}] {CAPTURES[name].about}", flush=True)
-        try:
-            results.append(one(name, CAPTURES[name], args))
-        except RuntimeError as err:
-            failed += 1
-            results.append({"capture": name, "error": str(err)})
-            print(f"[{name}] {err}", flush=True)
+        for piece in pieces or [None]:
+            print(f"[{name}{'/' + piece if piece else ''}] {CAPTURES[name].about}", flush=True)
+            try:
+                results.append(one(name, CAPTURES[name], args, piece))
+            except RuntimeError as err:
+                failed += 1
+                results.append({"capture": name, "piece": piece, "error": str(err)})
+                print(f"[{name}] {err}", flush=True)
     (args.out / "captures.json").write_text(json.dumps(results, indent=1))
+    if pieces:
+        _write_pieces_record(results, args)
+    else:
+        _write_record(results, args)
+    _print_table(results)
+    print(f"contact sheets and captures.json in {args.out}")
+    return 1 if failed else 0
+
+
+def _fmt(x) -> str:
+    return "-" if x is None or not math.isfinite(x) else f"{x:.2f}"
+
+
+def _write_pieces_record(results: list[dict], args) -> None:
+    _records.write_record(
+        "captures-pieces", title="Real captures: what each real-camera piece adds", merge_on="run",
+        context=f"held-out PSNR/SSIM within the masks, {args.minutes:g} min at {args.max_size} px per run; base: no "
+                "exposure, no camera refinement, the capture's fixed lighting, no texture stage; each piece alone on "
+                "base; all: every piece",
+        rows=[{"run": f"{r['capture']}/{r['piece']}", "lighting": r["lighting"], "faces": r["faces"],
+               "held-out dB": round(r["held_out_psnr"], 2) if r["held_out_psnr"] is not None else None,
+               "held-out SSIM": round(r["held_out_ssim"], 3) if r["held_out_ssim"] is not None else None,
+               "fitted-view dB": round(r["fitted_psnr"], 2) if r["fitted_psnr"] is not None else None,
+               "reconstruct min": r["minutes"]["reconstruct"]} for r in results if "error" not in r],
+        plots=[r["sheet"] for r in results if "error" not in r])
+
+
+def _write_record(results: list[dict], args) -> None:
     _records.write_record(
         "captures", title="Real captures", merge_on="capture",
         context=f"photographs imported at {args.import_size} px and reconstructed in {args.minutes:g} min at "
@@ -223,15 +283,16 @@ def run(args) -> int:
                "fitted-view dB": round(r["fitted_psnr"], 2) if r["fitted_psnr"] is not None else None,
                "reconstruct min": r["minutes"]["reconstruct"]} for r in results if "error" not in r],
         plots=[r["sheet"] for r in results if "error" not in r])
-    print(f"\n{'capture':8} {'frames':>6} {'held out':>9} {'held-out PSNR':>14} {'fitted PSNR':>12} "
+
+
+def _print_table(results: list[dict]) -> None:
+    print(f"\n{'capture':16} {'frames':>6} {'held out':>9} {'held-out PSNR':>14} {'fitted PSNR':>12} "
           f"{'tracked':>8} {'lighting':>9} {'faces':>6} {'minutes':>8}")
     for r in results:
         if "error" in r:
-            print(f"{r['capture']:8} failed: {r['error']}")
+            print(f"{r['capture']:16} failed: {r['error']}")
             continue
-        fmt = lambda x: "-" if x is None or not math.isfinite(x) else f"{x:.2f}"  # noqa: E731
-        print(f"{r['capture']:8} {r['frames']:6d} {len(r['held_out_frames']):9d} {fmt(r['held_out_psnr']):>14} "
-              f"{fmt(r['fitted_psnr']):>12} {fmt(r['tracked_last_psnr']):>8} {str(r['lighting']):>9} "
+        label = f"{r['capture']}/{r['piece']}" if r.get("piece") else r["capture"]
+        print(f"{label:16} {r['frames']:6d} {len(r['held_out_frames']):9d} {_fmt(r['held_out_psnr']):>14} "
+              f"{_fmt(r['fitted_psnr']):>12} {_fmt(r['tracked_last_psnr']):>8} {str(r['lighting']):>9} "
               f"{str(r['faces']):>6} {sum(r['minutes'].values()):8.1f}")
-    print(f"contact sheets and captures.json in {args.out}")
-    return 1 if failed else 0

@@ -7,6 +7,8 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -70,3 +72,44 @@ def test_unknown_capture_is_a_clear_error(tmp_path, capsys):
     captures.add_arguments(parser)
     assert captures.run(parser.parse_args(["--out", str(tmp_path), "--captures", "moon"])) == 2
     assert "unknown capture 'moon'" in capsys.readouterr().err
+
+
+def test_pieces_switch_one_real_camera_piece_each():
+    base = captures.PIECES["base"]
+    assert {"--exposure", "--refine-cameras", "--texture-stage"} <= set(base) and "--lighting" not in base
+    for piece, flag, value in (("exposure", "--exposure", "per-frame"), ("cameras", "--refine-cameras", "on"),
+                               ("texture", "--texture-stage", "on"), ("lighting", "--lighting", "auto")):
+        args = list(captures.PIECES[piece])
+        assert args[args.index(flag) + 1] == value
+        changed = {a for a in zip(args[::2], args[1::2])} - {a for a in zip(base[::2], base[1::2])}
+        assert changed == {(flag, value)}, piece  # that piece alone on top of base
+    every = dict(zip(captures.PIECES["all"][::2], captures.PIECES["all"][1::2]))
+    assert every == {"--exposure": "per-frame", "--refine-cameras": "on", "--texture-stage": "on", "--lighting": "auto"}
+
+
+def test_a_pieces_run_writes_a_row_per_piece(bench, tmp_path):
+    """Two models on the capture the module's bench imported (reused, not imported again)."""
+    args, _ = bench
+    parser = argparse.ArgumentParser()
+    captures.add_arguments(parser)
+    piece_args = parser.parse_args(["--out", str(args.out), "--captures", "dtu", "--minutes", "0.3",
+                                    "--import-size", "96", "--max-size", "32", "--spp", "4", "--fitted", "1",
+                                    "--pieces", "base,cameras",
+                                    "--reconstruct-args", "--iterations 4 --coarse-size 32 --initial-faces 500"])
+    assert captures.run(piece_args) == 0
+    results = json.loads((args.out / "captures.json").read_text())
+    assert [r["piece"] for r in results] == ["base", "cameras"]
+    for r in results:
+        assert math.isfinite(r["held_out_psnr"]) and 0 < r["held_out_ssim"] <= 1
+        assert (args.out / "dtu" / r["piece"] / "contact_sheet.png").is_file()
+        report = json.loads((args.out / "dtu" / r["piece"] / "run" / "report.json").read_text())
+        assert report["settings"]["exposure"] == "off"
+    record = json.loads((Path(os.environ["SFT_RECORDS"]) / "captures-pieces.json").read_text())
+    assert [row["run"] for row in record["figures"]["rows"]] == ["dtu/base", "dtu/cameras"]
+
+
+def test_an_unknown_piece_is_a_clear_error(tmp_path, capsys):
+    parser = argparse.ArgumentParser()
+    captures.add_arguments(parser)
+    assert captures.run(parser.parse_args(["--out", str(tmp_path), "--captures", "dtu", "--pieces", "magic"])) == 2
+    assert "unknown piece 'magic'" in capsys.readouterr().err
