@@ -104,6 +104,11 @@ def add_arguments(parser):
     parser.add_argument("--integrator", choices=["direct_projective", "prb_projective"], help=f"({d.integrator})")
     parser.add_argument("--max-depth", type=int, help=f"path depth for prb_projective ({d.max_depth})")
     parser.add_argument("--spp", type=int, help=f"samples per pixel per step ({d.spp})")
+    parser.add_argument("--primal-spp", type=int, metavar="N",
+                        help="samples per pixel of a geometry step's primal image (default: --spp); the backward "
+                             "pass keeps --spp (bench samples measures what each count buys)")
+    parser.add_argument("--sppp", type=int, metavar="N",
+                        help=f"samples per pixel of a geometry step's silhouette term ({d.sppp})")
     parser.add_argument("--remesh", choices=["auto", "always", "never"],
                         help="re-mesh between levels: when inconsistent (auto, the default), always or never")
     parser.add_argument("--track-metrics", action="store_true",

@@ -51,6 +51,11 @@ class ReconstructConfig:
     integrator: str = "direct_projective"  # or prb_projective (with max_depth) for interreflections
     max_depth: int = 3
     spp: int = 16  # samples per pixel for the interior (continuous) part of the gradient
+    # samples per pixel of a geometry step's primal image (0: spp). The loss's adjoint is the
+    # residual t(render) - t(target), so the primal's noise multiplies every pixel's derivative;
+    # more primal samples give a cleaner direction per second of a step (bench samples), which
+    # has not yet shown in a budgeted run's F1 (docs/notes/2026-12-02-sample-counts.md)
+    primal_spp: int = 0
     sppp: int = 4  # samples per pixel for the silhouette part (the costlier one)
     validation_views: int = 6
     validation_spp: int = 16

@@ -25,7 +25,9 @@ def seed_for(run_seed: int, step: int, view: int) -> int:
 
 class GradientRenderer(SceneRenderer):
     """A SceneRenderer whose differentiable renders use the integrator's own sample counts
-    (``sppc`` for the interior, ``sppp`` for silhouettes) rather than one runtime count."""
+    (``sppc`` for the interior, ``sppp`` for silhouettes) rather than one runtime count; the
+    primal image takes the sensors' count (``RenderSettings.primal_spp`` for a projective
+    integrator, else ``spp``)."""
 
     def render_split(self, view: int, seed: int, params):
         self._set_lights(view)

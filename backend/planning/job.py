@@ -32,7 +32,7 @@ from .remaining import Remaining, resumed
 from .time_plan import capture_plan, level_limit, make_plan
 
 OVERRIDES = ("init", "material", "effects", "initial_faces", "iterations", "seed", "max_size", "coarse_size", "views_per_step",
-             "integrator", "max_depth", "spp", "remesh", "max_levels", "level_iterations", "step", "lambda_",
+             "integrator", "max_depth", "spp", "primal_spp", "sppp", "remesh", "max_levels", "level_iterations", "step", "lambda_",
              "face_growth", "track_metrics", "track_accuracy", "held_out_every", "texture_stage", "texture_size",
              "exposure", "map_calibrated", "n_materials", "refine_cameras")
 VIDEO_SUFFIXES = {".mp4", ".mov", ".m4v", ".avi", ".mkv", ".webm", ".mts", ".mpg", ".mpeg", ".ogv"}
@@ -58,7 +58,8 @@ def choose_preset(args) -> str:
 
 def config_from_args(args) -> ReconstructConfig:
     """Defaults, then the preset, then the options given."""
-    for name in ("max_size", "coarse_size", "views_per_step", "initial_faces", "spp", "max_levels", "iterations",
+    for name in ("max_size", "coarse_size", "views_per_step", "initial_faces", "spp", "primal_spp", "sppp",
+                 "max_levels", "iterations",
                  "time_budget", "max_depth", "level_iterations", "step", "lambda_", "texture_size"):
         value = getattr(args, name)
         flag = "--smoothing" if name == "lambda_" else "--" + name.replace("_", "-")

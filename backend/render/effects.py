@@ -78,7 +78,7 @@ class EffectsDecision:
         return RenderSettings(spp=base.spp, max_depth=self.max_depth, integrator=integrator,
                               hide_emitters=base.hide_emitters, sppc=base.sppc, sppp=base.sppp,
                               sppi=sppi if (projective and self.shadows) else 0, guiding=base.guiding,
-                              rr_depth=base.rr_depth)
+                              rr_depth=base.rr_depth, primal_spp=base.primal_spp if projective else 0)
 
     def to_json(self) -> dict:
         return asdict(self)

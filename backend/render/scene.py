@@ -38,6 +38,9 @@ class RenderSettings:
     integrator: str = "path"
     hide_emitters: bool = True  # camera rays that miss the object see black
     sppc: int = 0  # projective integrators: continuous part uses spp
+    # projective gradient renders (mi.render with spp=0): samples of the primal image, the
+    # sensors' own count; the backward pass keeps sppc / sppp / sppi (0: spp)
+    primal_spp: int = 0
     sppp: int = 4  # primary-visibility (silhouette) samples per pixel
     sppi: int = 0  # indirect-visibility samples; 0 unless shadows change with the geometry
     # guiding of the indirect-visibility samples ('none' | 'grid' | 'octree', Mitsuba's default):
@@ -51,7 +54,7 @@ class RenderSettings:
         """A run's geometry steps before its effects decision: the ``config``'s samples, depth
         and integrator (a ReconstructConfig), emitters hidden, no shadow gradients."""
         return cls(spp=config.spp, max_depth=config.max_depth, integrator=config.integrator, hide_emitters=True,
-                   sppc=config.spp, sppp=config.sppp, sppi=0)
+                   sppc=config.spp, sppp=config.sppp, sppi=0, primal_spp=config.primal_spp)
 
     def integrator_dict(self) -> dict:
         if self.integrator not in INTEGRATORS:
@@ -149,7 +152,9 @@ class SceneRenderer:
         scene.update(extra_shapes or {})
         self.scene = mi.load_dict(scene)
         self.params = mi.traverse(self.scene)
-        self.sensors = [mi.load_dict(sensor_dict(c, self.settings.spp, rgba)) for c in cameras]
+        # the sensors' count is what a render at spp=0 uses (GradientRenderer.render_split)
+        primal = self.settings.primal_spp if self.settings.integrator.endswith("projective") else 0
+        self.sensors = [mi.load_dict(sensor_dict(c, primal or self.settings.spp, rgba)) for c in cameras]
         self._light_view = None
         self.light_scale = None  # a Dr.Jit Color3f times every point light's intensity (a fitted flash)
 
