@@ -184,7 +184,8 @@ def predict(name: str, config, costs: StepCosts, pixels_at, n_views: int, staged
             material += cycle
             phases.append(Phase("cycle", MATERIAL_ITERATIONS, cycle / MATERIAL_ITERATIONS))
     polish = 0.0
-    several = isinstance(getattr(c, "n_materials", 1), int) and c.n_materials > 1  # material masks: not seen here
+    count = getattr(c, "n_materials", 1)  # material masks are not seen here
+    several = isinstance(count, int) and count > 1
     if staged and plan and (c.lighting in ("estimate", "rig", "flash") or several):  # constants first, initial mesh
         material += c.light_first_cycles * cycle_seconds(costs, pixels_at(plan[0].size), plan[0].faces, n_views)
     cap_ends = c.iterations is not None and sum(lv.steps for lv in plan) >= c.iterations
