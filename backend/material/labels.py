@@ -24,6 +24,11 @@ from ..geometry.raycast import RayCaster
 from .meshcolors import unique_edges
 
 OBJECT_THRESHOLD = 0.5
+# k-means runs from this many k-means++ starts and keeps the lowest within-cluster variance: one
+# start can settle where one paint is split by brightness and two others are merged (a red wall
+# in two halves, the blue wall with the grey floor), and the merged paints' one constant then
+# matches neither colour
+KMEANS_STARTS = 8
 
 
 def read_label_image(path: str | Path) -> np.ndarray:
@@ -95,6 +100,19 @@ def check_label_set(names: list[str], labels: list[np.ndarray], sizes: list[tupl
         check_labels(name, labels[i], sizes[i], None if object_masks is None else object_masks[i])
 
 
+def kmeans(points: np.ndarray, k: int, rng: np.random.Generator, iterations: int = 25,
+           starts: int = KMEANS_STARTS) -> tuple[np.ndarray, np.ndarray, float]:
+    """k-means of ``points`` (N, D): the (centres, labels, inertia) of the best of ``starts``
+    k-means++ starts (the lowest sum of squared distances to the centres)."""
+    best = None
+    for _ in range(starts):
+        centres, label = kmeans2(points, k, iter=iterations, minit="++", missing="warn", seed=rng)
+        inertia = float(((points - centres[label]) ** 2).sum())
+        if best is None or inertia < best[2]:
+            best = (centres, label, inertia)
+    return best
+
+
 def cluster_labels(images: list[np.ndarray], object_masks: list[np.ndarray], k: int, seed: int = 0,
                    iterations: int = 25, max_pixels: int = 200_000) -> list[np.ndarray]:
     """Label images 1..k by k-means on object-pixel chromaticity and log brightness (0 = background),
@@ -107,7 +125,7 @@ def cluster_labels(images: list[np.ndarray], object_masks: list[np.ndarray], k: 
     allf = np.concatenate(feats)
     rng = np.random.default_rng(seed)
     sub = allf[rng.choice(len(allf), min(len(allf), max_pixels), replace=False)]
-    centres, _ = kmeans2(sub, k, iter=iterations, minit="++", missing="warn", seed=rng)
+    centres, _, _ = kmeans(sub, k, rng, iterations)
     order = np.argsort(np.argsort(centres[:, 2]))  # label 1 = darkest
     out = []
     for f, obj in zip(feats, where):
@@ -134,8 +152,7 @@ def choose_material_count(images: list[np.ndarray], object_masks: list[np.ndarra
     sub = feats[rng.choice(len(feats), min(len(feats), max_pixels), replace=False)]
     inertia = [float(((sub - sub.mean(0)) ** 2).sum())]
     for k in range(2, most + 1):
-        centres, label = kmeans2(sub, k, iter=25, minit="++", missing="warn", seed=rng)
-        inertia.append(float(((sub - centres[label]) ** 2).sum()))
+        inertia.append(kmeans(sub, k, rng)[2])
     k = 1
     while k < most and inertia[k] < gain * inertia[k - 1]:
         k += 1

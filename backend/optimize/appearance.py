@@ -179,9 +179,14 @@ class Appearance:
         improving: ``MaterialSchedule.min_improvement``). Geometry steps under a light
         that is still its first guess (a uniform map, a flash from the mean brightness) bend
         the surface to make the shading the light does not give yet, and later levels do not
-        win that back (docs/notes/2026-11-28-estimated-lighting-levels.md). Returns the cycles'
-        losses and time for ``report.json`` ``init``, or None when there is nothing to fit."""
-        if self.lighting is None or self.driver is None:
+        win that back (docs/notes/2026-11-28-estimated-lighting-levels.md).
+
+        Several materials (``--materials``, material masks) get the same cycles under the
+        captured lights: from the neutral grey start each paint renders too bright in the
+        channels it lacks, and the geometry steps move its surface away from the lamps to
+        darken it (the open corner's walls, docs/notes/2026-12-02-corner-tint.md). Returns the
+        cycles' losses and time for ``report.json`` ``init``, or None when there is nothing to fit."""
+        if self.driver is None or (self.lighting is None and self.driver.labels.n_materials <= 1):
             return None
         start, losses = time.perf_counter(), []
         while len(losses) < self.config.light_first_cycles and self.driver.stage == "constant":

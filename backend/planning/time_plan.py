@@ -154,7 +154,8 @@ def predict(name: str, config, costs: StepCosts, pixels_at, n_views: int, staged
     ``FINAL_MATERIAL_CYCLES`` (at most ``final_material_cycles``) cycles four times as long, and ``POLISH_ROUNDS`` (at most
     ``polish_rounds``) polish rounds of ``POLISH_STEPS`` steps, each with a refinement cycle (not
     when an iteration cap ends the run with its levels). A
-    fitted lighting (``estimate``, ``flash``) adds ``light_first_cycles`` cycles before level 0.
+    fitted lighting (``estimate``, ``flash``) or several materials (``n_materials``) add
+    ``light_first_cycles`` cycles before level 0.
     ``FIXED_SECONDS`` covers start, loading, initialisation and the effects decision. A time
     budget or an iteration cap cuts the prediction where the run would stop.
 
@@ -183,7 +184,9 @@ def predict(name: str, config, costs: StepCosts, pixels_at, n_views: int, staged
             material += cycle
             phases.append(Phase("cycle", MATERIAL_ITERATIONS, cycle / MATERIAL_ITERATIONS))
     polish = 0.0
-    if staged and plan and c.lighting in ("estimate", "rig", "flash"):  # the lighting first, on the initial mesh
+    count = getattr(c, "n_materials", 1)  # material masks are not seen here
+    several = isinstance(count, int) and count > 1
+    if staged and plan and (c.lighting in ("estimate", "rig", "flash") or several):  # constants first, initial mesh
         material += c.light_first_cycles * cycle_seconds(costs, pixels_at(plan[0].size), plan[0].faces, n_views)
     cap_ends = c.iterations is not None and sum(lv.steps for lv in plan) >= c.iterations
     if staged and plan and not cap_ends:  # an iteration cap ends a run with its levels' cycles

@@ -1,7 +1,7 @@
 """The open colour-bleeding corner (a grey floor, a red and a blue wall, one lamp inside the
 corner): the carved start frees the lamp the visual hull encloses, the run goes on, the
 effects selector keeps interreflections, and the floor's fitted albedo beside each wall
-carries little of that wall's tint (the goal: at most TINT = 0.05). A lamp inside a closed
+carries little of that wall's tint (at most TINT = 0.05). A lamp inside a closed
 object stays a one-line capture error."""
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ from backend.geometry.init.carve import carve
 from backend.geometry.mesh import load_mesh
 from backend.geometry.raycast import RayCaster, pixel_rays
 from backend.geometry.topology import enclosed, face_components, inspect
-from backend.synth.corner import BLUE, RED, CornerSpec, floor_tints, tint, write_open_corner
+from backend.synth.corner import CornerSpec, floor_tints, write_open_corner
 from tests.helpers import run_cli
 
 SPEC = CornerSpec(views=8, resolution=40, spp=128)
@@ -72,9 +72,16 @@ def test_a_lamp_inside_a_closed_object_is_a_capture_error(tmp_path):
 
 @pytest.fixture(scope="module")
 def corner_run(corner, tmp_path_factory) -> Path:
+    # three paints, three materials, their constants fitted before the first geometry step: a
+    # wall that shares one albedo with the floor, or still has the grey start, renders too
+    # bright in the channels its paint lacks, and the geometry steps push it away from the lamp,
+    # behind the carved start; the textured albedo then paints the bounce the far wall no longer
+    # throws onto the floor into the floor's own albedo (docs/notes/2026-12-02-corner-tint.md).
+    # `--materials auto` counts two paints here.
     run = tmp_path_factory.mktemp("corner_run") / "run"
     proc = run_cli("reconstruct", corner, "--out", run, "--effects", "auto", "--max-size", 40, "--coarse-size", 20,
-                   "--initial-faces", 1500, "--spp", 8, "--time-budget", 2.0, "--remesh", "never", timeout=400)
+                   "--initial-faces", 1500, "--spp", 8, "--time-budget", 2.0, "--remesh", "never",
+                   "--materials", 3, timeout=400)
     assert proc.returncode == 0, proc.stderr[-3000:]
     return run
 
@@ -92,9 +99,6 @@ def test_the_floor_beside_each_wall_carries_no_tint_of_it(corner, corner_run):
     shown = load_mesh(corner_run / snapshot["mesh"])  # the fitted albedo as vertex colours
     tints = floor_tints(shown, [f.camera for f in load_capture(corner).frames])
     assert min(tints["hits"].values()) > 20, tints
-    # at 40 px in a 2-minute wall-clock budget (fewer steps on a loaded machine) the surface
-    # has not yet come forward from the hull's far side to the walls, so the CI bound is a
-    # third of each wall's own tint: most of the light the walls bleed onto the floor stays
-    # interreflection, not albedo (the goal, TINT, needs the surface at the walls)
-    assert tints["red"] <= tint(np.asarray(RED), "red") / 3, tints
-    assert tints["blue"] <= tint(np.asarray(BLUE), "blue") / 3, tints
+    # the light the walls bleed onto the floor stays interreflection: the floor's tint is at most
+    # TINT (about a thirteenth of each wall's own tint)
+    assert tints["red"] <= TINT and tints["blue"] <= TINT, tints

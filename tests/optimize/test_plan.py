@@ -111,6 +111,10 @@ def test_a_fitted_lighting_is_charged_its_cycles_on_the_initial_mesh():
     expected = estimated.light_first_cycles * plan.cycle_seconds(costs, pixels_at(first.size), first.faces, 8)
     assert b.material_s - a.material_s == pytest.approx(expected) and expected > 0
     assert b.geometry_s == pytest.approx(a.geometry_s)
+    # several materials under the captured lights fit their constants first as well
+    several = ReconstructConfig(**PRESETS["draft"], material="staged", n_materials=3)
+    c = plan.predict("draft", several, costs, pixels_at, 8, staged=True)
+    assert c.material_s - a.material_s == pytest.approx(expected)
 
 
 def test_the_final_material_cycles_and_the_polish_are_charged_as_configured():
