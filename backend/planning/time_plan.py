@@ -183,7 +183,7 @@ def predict(name: str, config, costs: StepCosts, pixels_at, n_views: int, staged
             material += cycle
             phases.append(Phase("cycle", MATERIAL_ITERATIONS, cycle / MATERIAL_ITERATIONS))
     polish = 0.0
-    if staged and plan and c.lighting in ("estimate", "rig", "flash"):  # the lighting first, on the initial mesh
+    if staged and plan and c.lighting in ("estimate", "rig", "world+rig", "flash"):  # the lighting first, on the initial mesh
         material += c.light_first_cycles * cycle_seconds(costs, pixels_at(plan[0].size), plan[0].faces, n_views)
     cap_ends = c.iterations is not None and sum(lv.steps for lv in plan) >= c.iterations
     if staged and plan and not cap_ends:  # an iteration cap ends a run with its levels' cycles
