@@ -217,7 +217,8 @@ def lighting_summary(event: dict) -> str:
         what = "flash"
     else:
         width, height = (event.get("resolution") or [0, 0])[:2]
-        what = ("map on the camera rig" if event.get("frame") == "camera" else "estimated map") + f" {width}x{height}"
+        what = {"camera": "map on the camera rig", "world+camera": "world map + camera rig map"}.get(
+            event.get("frame"), "estimated map") + f" {width}x{height}"
     when = event.get("when")
     if when == "restarted":
         return f"{what}, fitting again on the final surface"

@@ -21,6 +21,10 @@ budget (the budget's clock starts with the command); with a budget, the probe ta
 ``BUDGET_SHARE`` of it, split between the candidates, each stopping after the cycle that
 reaches its share (at least one cycle each).
 
+The summed maps (``world+rig``) can light a capture as either map alone does and more, so
+they are ranked with a handicap (``SUMMED_HANDICAP_DB``): they win where both kinds of light
+are there, not by fitting the held-out frames' noise a little closer.
+
 A run-off makes the choice less fickle: three constant cycles leave the candidates short of
 where a run takes them, and on a capture that mixes room and rig light the first two came
 within a dB or so, in an order that flipped with the initial mesh, while full runs told them
@@ -59,6 +63,9 @@ BUDGET_SHARE = 0.1  # the most of a time budget the probe takes
 TIE_DB = 1.5  # the first two this close (dB of held-out loss): a run-off between them
 RUNOFF_CYCLES = 6  # most constant cycles of each run-off fit
 RUNOFF_SHARE = 0.5  # of the probe's time share, kept for the run-off
+# the summed maps hold a single map's light and more: they are ranked as if their loss were
+# this many dB higher, so they win only where the second map earns its texels
+SUMMED_HANDICAP_DB = 0.5
 SEED = 9_000_011
 NAMES = {"estimate": "world map", "rig": "rig map", "world+rig": "world + rig maps", "flash": "flash at the camera", "captured": "captured lights"}
 
@@ -88,9 +95,15 @@ def _probe_config(config):
                                light_first_cycles=RUNOFF_CYCLES, track_accuracy=False)
 
 
+def _rank(result: dict) -> float:
+    """The loss a candidate is ranked by: its held-out loss, the summed maps' raised by
+    ``SUMMED_HANDICAP_DB``."""
+    return result["loss"] * (10 ** (SUMMED_HANDICAP_DB / 10) if result["model"] == "world+rig" else 1.0)
+
+
 def _margin(winner: dict, second: dict) -> float:
-    """10 log10(runner-up's loss / winner's), dB."""
-    return 10 * math.log10(second["loss"] / winner["loss"]) if winner["loss"] > 0 else math.inf
+    """10 log10(runner-up's ranked loss / winner's), dB (``_rank``)."""
+    return 10 * math.log10(_rank(second) / _rank(winner)) if winner["loss"] > 0 else math.inf
 
 
 def held_out_loss(renders: list[np.ndarray], views) -> float:
@@ -188,12 +201,12 @@ def choose(capture: Capture, config, emit, budget_s: float | None = None, modes:
                                           views, held_views))
             emit("progress", stage="lighting:probe", level=0, iteration=k + 1, iterations=len(modes),
                  loss=results[-1]["loss"], faces=mesh.n_faces)
-        ranked = sorted(results, key=lambda r: r["loss"])
+        ranked = sorted(results, key=_rank)
         if _margin(ranked[0], ranked[1]) < TIE_DB:
             left = share - (time.perf_counter() - start) if budget_s is not None else math.inf
             runoff = [_fit_and_score(r["model"], fit, held, mesh, cfg, left / 2, Path(folder), views, held_views,
                                      RUNOFF_CYCLES) for r in ranked[:2]]
-            ranked = sorted(runoff, key=lambda r: r["loss"]) + ranked[2:]
+            ranked = sorted(runoff, key=_rank) + ranked[2:]
     winner, second = ranked[0], ranked[1]
     margin = _margin(winner, second)
     for r in results + (runoff or []):
