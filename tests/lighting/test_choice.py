@@ -46,6 +46,8 @@ def _choose(path) -> dict:
     choice = lighting_choice.choose(load_capture(path), ReconstructConfig(init="carve"),
                                     lambda name, **fields: events.append({"event": name, **fields}))
     assert events[-1]["event"] == lighting_choice.EVENT and events[-1]["winner"] == choice["winner"]
+    print(choice["line"], {c["model"]: c["psnr"] for c in choice["candidates"]},  # the figures, for -s logs
+          {c["model"]: c["psnr"] for c in choice["runoff"] or []})
     assert {c["model"] for c in choice["candidates"]} == {"estimate", "rig", "world+rig", "flash"}
     if choice["runoff"] is not None:  # a near tie: the first two fitted longer decide
         assert len(choice["runoff"]) == 2 and choice["winner"] in {c["model"] for c in choice["runoff"]}
