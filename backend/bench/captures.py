@@ -295,9 +295,8 @@ def _write_record(results: list[dict], args) -> None:
                    "held out": len(r["held_out_frames"]), "faces": r["faces"],
                    "held-out dB": round(r["held_out_psnr"], 2) if r["held_out_psnr"] is not None else None,
                    "fitted-view dB": round(r["fitted_psnr"], 2) if r["fitted_psnr"] is not None else None,
-                   "reconstruct min": r["minutes"]["reconstruct"]} for r in results if "error" not in r],
-            plots=[r["sheet"] for r in results if "error" not in r])
-        return
+                   "reconstruct min": r["minutes"]["reconstruct"]} for r in results if "error" not in r])
+        return  # its contact sheets stay in OUT: the captures' default sheets are the docs' plots
     _records.write_record(
         "captures", title="Real captures", merge_on="capture",
         context=f"photographs imported at {args.import_size} px and reconstructed in {args.minutes:g} min at "
