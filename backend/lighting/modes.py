@@ -34,8 +34,8 @@ MODES = ("auto", "captured", "estimate", "rig", "world+rig", "flash", "none")
 MAP_FRAME = {"estimate": "world", "rig": "camera", "world+rig": "world+camera"}
 ESTIMATED = tuple(MAP_FRAME)
 HELP = ("the lighting: 'auto' (the model with the lowest held-out loss on a short probe on the initial mesh, "
-        "among a world-fixed map, a camera-fixed map, the two summed, a flash at the camera and the captured lights when the "
-        "capture records any; report.json lighting_choice), 'captured' (the capture's environment map and point lights, or --env), 'estimate' (an "
+        "among a world-fixed map, a camera-fixed map, the two summed, a flash at the camera and the captured "
+        "lights when the capture records any; report.json lighting_choice), 'captured' (the capture's environment map and point lights, or --env), 'estimate' (an "
         "environment map fitted with the material, written as RUN/environment.exr; a captured map is withheld), "
         "'rig' (the same map fixed to the camera: lamps on the camera rig, as in DTU-like studios), "
         "'world+rig' (a world-fixed and a camera-fixed map summed, fitted together: the room's light plus the rig's; "

@@ -67,7 +67,8 @@ RUNOFF_SHARE = 0.5  # of the probe's time share, kept for the run-off
 # this many dB higher, so they win only where the second map earns its texels
 SUMMED_HANDICAP_DB = 0.5
 SEED = 9_000_011
-NAMES = {"estimate": "world map", "rig": "rig map", "world+rig": "world + rig maps", "flash": "flash at the camera", "captured": "captured lights"}
+NAMES = {"estimate": "world map", "rig": "rig map", "world+rig": "world + rig maps", "flash": "flash at the camera",
+         "captured": "captured lights"}
 
 
 def candidates(capture: Capture) -> list[str]:
