@@ -7,7 +7,10 @@ The run's lighting is what its material was fitted under (backend/lighting/fitte
   frames' point lights;
 - ``estimate``: the fitted RUN/environment.exr (strength 1, rotation 0, times the light
   factor) and the frames' point lights; fixed to the camera (``--lighting rig``) the map
-  turns with the preview camera;
+  turns with the preview camera; a world + rig run (``--lighting world+rig``: a world-fixed
+  map plus RUN/environment_rig.exr fixed to the camera, summed) previews under its world-fixed
+  map alone: a World holds one environment texture, and the camera-fixed part (the light that
+  turned with the frames' camera) is left out, so the preview is darker where that part lit;
 - ``flash``: one point light at the preview camera's centre with the fitted intensity.
 
 Rendering happens in a temporary scene, so the user's scene, world and render settings
@@ -32,7 +35,8 @@ IMAGE_NAME = "SfT Relit Preview"
 SCENE_NAME = ".sft_preview"  # the temporary scene a preview renders
 ESTIMATED_MAP = "environment.exr"  # RUN/environment.exr: --lighting estimate and rig (docs/protocol.md)
 SETTING_MODELS = {"ESTIMATE": ("estimate", "world"), "RIG": ("estimate", "camera"), "FLASH": ("flash", "world"),
-                  "CAPTURED": ("captured", "world")}
+                  "WORLD_RIG": ("estimate", "world+camera"), "CAPTURED": ("captured", "world")}
+SUMMED_FRAME = "world+camera"  # report.json lighting.frame of --lighting world+rig
 
 
 @dataclass
@@ -95,7 +99,7 @@ def run_lighting(run_dir: Path | None, setting: str = "CAPTURED") -> dict:
     if isinstance(lighting, dict):
         name = str(lighting.get("model", "captured"))
         out["model"] = "flash" if name == "flash" else "estimate" if name.startswith("environment map") else "captured"
-        out["frame"] = "camera" if lighting.get("frame") == "camera" else "world"
+        out["frame"] = lighting.get("frame") if lighting.get("frame") in ("camera", SUMMED_FRAME) else "world"
         out["intensity"] = lighting.get("intensity")
         out["file"] = run / str(lighting.get("file") or ESTIMATED_MAP)
         try:
@@ -105,6 +109,7 @@ def run_lighting(run_dir: Path | None, setting: str = "CAPTURED") -> dict:
     else:
         if isinstance(argv, list):
             out["model"], out["frame"] = {"estimate": ("estimate", "world"), "rig": ("estimate", "camera"),
+                                          "world+rig": ("estimate", SUMMED_FRAME),
                                           "flash": ("flash", "world")}.get(options.get("--lighting"),
                                                                            ("captured", "world"))
         out["file"] = run / ESTIMATED_MAP
@@ -160,8 +165,10 @@ def preview_lighting(info: CaptureInfo, run_dir: Path | None, setting: str, othe
         require(path is not None and path.is_file(), path or run_dir, "the run has no estimated environment map yet",
                 "reconstruct first (Lighting: Estimate writes RUN/environment.exr), or choose Other HDR")
         rig = fitted["frame"] == "camera"
+        part = " (its world-fixed part; the camera-fixed map is not shown)" if fitted["frame"] == SUMMED_FRAME else ""
         return PreviewLighting({"path": path, "strength": factor, "rotation_z_deg": 0.0}, camera_fixed=rig,
-                               describe="under the run's estimated environment" + (" (on the camera)" if rig else ""))
+                               describe="under the run's estimated environment" + (" (on the camera)" if rig else "")
+                               + part)
     env = fitted["env"] or (panel_env if not run_dir or not Path(run_dir).is_dir() else None) or info.environment
     if env is not None and factor != 1.0:
         env = dict(env, strength=env["strength"] * factor)

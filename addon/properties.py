@@ -28,12 +28,18 @@ EFFECTS = (
     ("ALL", "All", "Simulate every effect: slower, for scenes where the measurement may miss one"),
 )
 LIGHTING = (
+    ("AUTO", "Auto", "Choose the lighting by a short probe before the run: a map fixed to the world, one fixed to "
+     "the camera, the two summed, or a flash at the camera, whichever renders held-out frames best (the panel "
+     "shows the winner and its margin). The default while no map or lights are imported"),
     ("ESTIMATE", "Estimate", "Fit an environment map with the material (no HDR capture needed); the World shows "
      "it after the run. Albedo and light share one scale: the object's mean albedo is set to 0.5"),
     ("CAPTURED", "Captured HDR", "The imported environment map (Import Environment Map) or the capture's own lights"),
     ("RIG", "Estimate, on the camera", "Fit an environment map fixed to the camera instead of the world "
      "(lamps on the camera rig, as in DTU-like studios: the light turns with every view); the World is left "
      "as it is, the map stays in the run folder"),
+    ("WORLD_RIG", "Estimate, world + camera", "Fit two maps together, one fixed to the world and one fixed to the "
+     "camera, summed: a room's light plus lamps that turn with the camera (DTU-like studios). The World shows the "
+     "world-fixed map after the run; the camera-fixed one stays in the run folder (environment_rig.exr)"),
     ("FLASH", "Camera flash", "A point light at every camera (a phone's flash, DTU-like captures), its intensity "
      "fitted with the material; the capture's own lights are replaced. The object's mean albedo is set to 0.5"),
 )
@@ -120,7 +126,7 @@ class SFT_SceneSettings(bpy.types.PropertyGroup):
                                  description="Mesh object to start from (empty: the active object)")
     effects: EnumProperty(name="Effects", items=EFFECTS, default="AUTO",
                           description="Light-transport effects simulated while optimising", update=_plan_stale)
-    lighting: EnumProperty(name="Lighting", items=LIGHTING, default="ESTIMATE",
+    lighting: EnumProperty(name="Lighting", items=LIGHTING, default="AUTO",
                            description="Where the light comes from (Import Environment Map switches to Captured "
                                        "HDR, as does importing a capture with point lights)", update=_plan_stale)
     extra_args: StringProperty(

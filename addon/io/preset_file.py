@@ -57,7 +57,7 @@ def kind_for(lighting: str, env_path: str = "") -> str:
     """The calibration kind a capture is promised, decided as the backend's ``lighting_kind``
     does: 'environment' when a map lights it (an imported HDR, or one the run estimates),
     else 'point' (the capture's lights, a flash)."""
-    if lighting in ("ESTIMATE", "RIG") or (lighting == "CAPTURED" and env_path):
+    if lighting in ("AUTO", "ESTIMATE", "RIG", "WORLD_RIG") or (lighting == "CAPTURED" and env_path):
         return "environment"
     return "point"
 

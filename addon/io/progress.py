@@ -217,7 +217,8 @@ def lighting_summary(event: dict) -> str:
         what = "flash"
     else:
         width, height = (event.get("resolution") or [0, 0])[:2]
-        what = ("map on the camera rig" if event.get("frame") == "camera" else "estimated map") + f" {width}x{height}"
+        what = {"camera": "map on the camera rig", "world+camera": "world map + camera rig map"}.get(
+            event.get("frame"), "estimated map") + f" {width}x{height}"
     when = event.get("when")
     if when == "restarted":
         return f"{what}, fitting again on the final surface"
@@ -239,8 +240,8 @@ def refined_cameras_summary(event: dict) -> str:
     if event.get("rotation_deg") is not None and event.get("translation_pct") is not None:
         line += f" ({float(event['rotation_deg']):.2g}\u00b0, {float(event['translation_pct']):.2g} %)"
     return line
-MODEL_NAMES = {"estimate": "world map", "rig": "rig map", "flash": "flash at the camera",
-               "captured": "captured lights"}
+MODEL_NAMES = {"estimate": "world map", "rig": "rig map", "world+rig": "world + rig maps",
+               "flash": "flash at the camera", "captured": "captured lights"}
 
 
 def lighting_choice_summary(event: dict) -> str:
@@ -251,7 +252,7 @@ def lighting_choice_summary(event: dict) -> str:
     margin = event.get("margin_db")
     if margin is None:
         return f"lighting: {name} (not probed)"
-    return f"lighting: {name}, by {float(margin):.1f} dB"
+    return f"lighting: {name}, by {float(margin):.1f} dB" + (" (run-off)" if event.get("runoff") else "")
 
 
 def cameras_summary(done: dict) -> str:

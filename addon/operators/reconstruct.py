@@ -33,6 +33,10 @@ def reconstruct_args(capture: Path, run: Path, preset: str | None, extra: str = 
 INIT_OPTIONS = {"CARVE": "carve", "SPHERE": "sphere", "POINTS": "points"}
 
 
+# the Lighting settings that name a backend --lighting (CAPTURED passes the imported map, or nothing)
+LIGHTING_OPTIONS = {"AUTO": "auto", "ESTIMATE": "estimate", "RIG": "rig", "WORLD_RIG": "world+rig", "FLASH": "flash"}
+
+
 def method_args(sft, init_mesh: Path | None = None) -> list[str]:
     """The panel's method settings as backend options: budget, accuracy tracking, material, start,
     effects, lighting."""
@@ -47,12 +51,8 @@ def method_args(sft, init_mesh: Path | None = None) -> list[str]:
     elif sft.init in INIT_OPTIONS:
         args += ["--init", INIT_OPTIONS[sft.init]]
     args += ["--effects", sft.effects.lower()]
-    if sft.lighting == "ESTIMATE":
-        args += ["--lighting", "estimate"]
-    elif sft.lighting == "RIG":
-        args += ["--lighting", "rig"]
-    elif sft.lighting == "FLASH":
-        args += ["--lighting", "flash"]
+    if sft.lighting in LIGHTING_OPTIONS:
+        args += ["--lighting", LIGHTING_OPTIONS[sft.lighting]]
     elif sft.env_path:
         args += ["--env", str(abspath(sft.env_path)), "--env-strength", f"{sft.env_strength:g}",
                  "--env-rotation", f"{sft.env_rotation:g}"]
@@ -146,14 +146,27 @@ class _ReconstructModal(JobModal):
         return {"FINISHED"} if changed else {"CANCELLED"}
 
 
+def _fitted_frame(run_dir) -> str | None:
+    """The frame of the run's fitted map (report.json ``lighting.frame``: world, camera or
+    world+camera; what an Auto run chose), None without one."""
+    try:
+        lighting = json.loads((Path(run_dir) / "report.json").read_text()).get("lighting") or {}
+    except (OSError, ValueError, AttributeError):
+        return None
+    return lighting.get("frame") if isinstance(lighting, dict) else None
+
+
 def _load_estimated_lighting(context, run_dir) -> str:
     """The run's estimated environment (``--lighting estimate``) into the World; a note for the report.
     A map fixed to the camera (``rig``) has no place in a World: it stays in the run folder."""
-    if getattr(context.scene.sft, "lighting", "") == "RIG":
+    frame = _fitted_frame(run_dir) or {"RIG": "camera", "WORLD_RIG": "world+camera"}.get(
+        getattr(context.scene.sft, "lighting", ""))
+    if frame == "camera":
         return "; lighting fitted on the camera rig (environment.exr in the run folder; the World is unchanged)"
+    rig_part = " (its world-fixed map; the camera-fixed one is environment_rig.exr)" if frame == "world+camera" else ""
     try:
-        return "; World lit by the estimated environment" if world.load_estimated_environment(context.scene,
-                                                                                             run_dir) else ""
+        return ("; World lit by the estimated environment" + rig_part
+                if world.load_estimated_environment(context.scene, run_dir) else "")
     except AddonInputError as err:
         return f"; estimated environment not loaded ({err})"
 

@@ -146,10 +146,15 @@ class SFT_PT_reconstruct(_Panel, bpy.types.Panel):
             col.prop(sft, "init_object")
         col.prop(sft, "effects")
         col.prop(sft, "lighting")
-        if sft.lighting == "ESTIMATE":
+        if sft.lighting == "AUTO":
+            col.label(text="Chosen by a short probe before the run (world, camera, both summed, flash)",
+                      icon="LIGHT_SUN")
+        elif sft.lighting == "ESTIMATE":
             col.label(text="Lighting estimated with the material (mean albedo 0.5 sets the scale)", icon="WORLD_DATA")
         elif sft.lighting == "RIG":
             col.label(text="A map fixed to the camera, estimated with the material", icon="CAMERA_DATA")
+        elif sft.lighting == "WORLD_RIG":
+            col.label(text="A world-fixed map plus a camera-fixed one, estimated together", icon="WORLD_DATA")
         elif sft.lighting == "FLASH":
             col.label(text="A flash at each camera, intensity fitted (mean albedo 0.5 sets the scale)", icon="LIGHT_POINT")
         elif sft.env_path:

@@ -98,12 +98,16 @@ class Environment:
     # the map's pixels held in memory (H, W, 3), read instead of ``path`` (a map being fitted:
     # backend.lighting.estimated_map; ``path`` is where it is written)
     pixels: np.ndarray | None = field(default=None, repr=False, compare=False)
-    frame: str = "world"  # or "camera": fixed to each view's camera (see above)
+    frame: str = "world"  # or "camera": fixed to each view's camera (see above); or "world+camera"
+    # "world+camera" (``--lighting world+rig``, backend.lighting.summed_map): ``path``/``pixels`` is
+    # the world-fixed map and this second map, fixed to the camera, is added to it in every view
+    rig_path: Path | None = None
+    rig_pixels: np.ndarray | None = field(default=None, repr=False, compare=False)
 
     def scaled(self, factor: float) -> "Environment":
         """The same map ``factor`` times as bright (a fitted light factor applied)."""
         return Environment(self.path, self.strength * factor, self.rotation_z_deg, self.provenance, self.pixels,
-                           self.frame)
+                           self.frame, self.rig_path, self.rig_pixels)
 
     @staticmethod
     def rig_axes(camera_to_world: np.ndarray) -> np.ndarray:

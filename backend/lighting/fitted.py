@@ -28,7 +28,7 @@ import numpy as np
 
 from ..capture.model import Capture, Environment
 from ..errors import InputError, require
-from . import estimated_map, flash
+from . import estimated_map, flash, summed_map
 
 MODELS = ("captured", "estimate", "flash")
 
@@ -54,7 +54,9 @@ class RunLighting:
             return f"the run's fitted flash: {value} W/sr at each view's camera"
         factor = "" if self.light_factor == 1.0 else f" x light factor {self.light_factor:.4g}"
         if self.model == "estimate":
-            rig = ", fixed to the camera" if self.environment is not None and self.environment.frame == "camera" else ""
+            frame = None if self.environment is None else self.environment.frame
+            rig = {"camera": ", fixed to the camera",
+                   summed_map.FRAME: f" plus {summed_map.RIG_FILENAME}, fixed to the camera"}.get(frame, "")
             return f"the run's fitted environment map ({estimated_map.FILENAME}{rig}){factor}"
         return f"the views' own lights{factor}"
 
@@ -65,7 +67,7 @@ def from_live(lighting, material) -> RunLighting:
     factor = float(getattr(material, "light_factor", 1.0) or 1.0)
     if isinstance(lighting, flash.Flash):
         return RunLighting("flash", intensity=lighting.rgb_intensity)
-    if isinstance(lighting, estimated_map.EstimatedEnvironment):
+    if isinstance(lighting, (estimated_map.EstimatedEnvironment, summed_map.SummedEnvironment)):
         return RunLighting("estimate", lighting.environment(), light_factor=factor)
     return RunLighting("captured", light_factor=factor)
 
@@ -94,6 +96,12 @@ def from_run(folder: str | Path) -> RunLighting:
         path = folder / str(lighting.get("file") or estimated_map.FILENAME)
         require(path.is_file(), path, "the run's estimated environment map is missing",
                 "re-run or resume the reconstruction (it writes the map with every snapshot)")
+        if lighting.get("frame") == summed_map.FRAME:
+            rig = folder / str(lighting.get("rig_file") or summed_map.RIG_FILENAME)
+            require(rig.is_file(), rig, "the run's estimated rig map is missing",
+                    "re-run or resume the reconstruction (it writes the maps with every snapshot)")
+            return RunLighting("estimate", Environment(path, 1.0, 0.0, "estimated", frame=summed_map.FRAME,
+                                                       rig_path=rig), light_factor=factor)
         frame = "camera" if lighting.get("frame") == "camera" else "world"
         return RunLighting("estimate", Environment(path, 1.0, 0.0, "estimated", frame=frame), light_factor=factor)
     if model != "captured":

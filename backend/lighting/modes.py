@@ -6,10 +6,12 @@
   a captured map is withheld (point lights stay).
 - ``rig``: the same fitted map, fixed to each view's camera instead of the world (lamps on
   the camera rig, DTU-like studios: the light turns with the view).
+- ``world+rig``: a world-fixed and a camera-fixed map summed, fitted together
+  (backend.lighting.summed_map): a room's light plus lamps on the camera rig.
 - ``flash``: a point light at every camera centre, its intensity fitted with the material
   (backend.lighting.flash); the capture's own lights are replaced (placed here at the
   nominal intensity 1 until the run's initial estimate) and a captured map is withheld.
-- ``auto``: one of ``estimate``, ``rig``, ``flash`` (and ``captured`` when the capture records a
+- ``auto``: one of ``estimate``, ``rig``, ``world+rig``, ``flash`` (and ``captured`` when the capture records a
   light), chosen by its held-out loss on a short probe on the initial mesh
   (backend.planning.lighting_choice); the capture is left as it is until the run resolves the
   winner with :func:`resolve_lighting`. The default when the capture has no light and no
@@ -27,15 +29,17 @@ from ..capture.validate import validate_environment
 from ..errors import InputError, require
 from . import flash
 
-MODES = ("auto", "captured", "estimate", "rig", "flash", "none")
+MODES = ("auto", "captured", "estimate", "rig", "world+rig", "flash", "none")
 # the modes that fit an environment map with the material, and the frame it is fixed to
-MAP_FRAME = {"estimate": "world", "rig": "camera"}
+MAP_FRAME = {"estimate": "world", "rig": "camera", "world+rig": "world+camera"}
 ESTIMATED = tuple(MAP_FRAME)
 HELP = ("the lighting: 'auto' (the model with the lowest held-out loss on a short probe on the initial mesh, "
-        "among a world-fixed map, a camera-fixed map, a flash at the camera and the captured lights when the "
-        "capture records any; report.json lighting_choice), 'captured' (the capture's environment map and point lights, or --env), 'estimate' (an "
+        "among a world-fixed map, a camera-fixed map, the two summed, a flash at the camera and the captured "
+        "lights when the capture records any; report.json lighting_choice), 'captured' (the capture's environment map and point lights, or --env), 'estimate' (an "
         "environment map fitted with the material, written as RUN/environment.exr; a captured map is withheld), "
         "'rig' (the same map fixed to the camera: lamps on the camera rig, as in DTU-like studios), "
+        "'world+rig' (a world-fixed and a camera-fixed map summed, fitted together: the room's light plus the rig's; "
+        "written as RUN/environment.exr and RUN/environment_rig.exr), "
         "'flash' (a point light at every camera, e.g. a phone's flash, its intensity fitted with the material; "
         "the capture's own lights are replaced) or 'none' (no estimate: a capture without light is an error). "
         "Default: auto when the capture has no light and no --env is given, else captured")

@@ -13,6 +13,7 @@ from ..errors import InputError
 from ..lighting.convention import AlbedoScale, check_scale, rescale_albedo, scale_report
 from ..lighting.estimated_map import FILENAME as ESTIMATED_MAP
 from ..lighting.estimated_map import EstimatedEnvironment
+from ..lighting.summed_map import FRAME as SUMMED_FRAME, SummedEnvironment
 from ..lighting.flash import Flash
 from ..lighting.modes import ESTIMATED, MAP_FRAME
 from ..material import factory
@@ -94,8 +95,12 @@ class Appearance:
         frames suggest (a resumed run's comes back with ``restore``)."""
         if self.config.lighting in ESTIMATED:
             path, frame = folder / ESTIMATED_MAP, MAP_FRAME[self.config.lighting]
-            self.lighting = (EstimatedEnvironment.load(path, frame=frame) if resume and path.is_file()
-                             else EstimatedEnvironment.initial(self.capture, path, frame))
+            if frame == SUMMED_FRAME:
+                self.lighting = (SummedEnvironment.load(path) if resume and SummedEnvironment.files_exist(path)
+                                 else SummedEnvironment.initial(self.capture, path))
+            else:
+                self.lighting = (EstimatedEnvironment.load(path, frame=frame) if resume and path.is_file()
+                                 else EstimatedEnvironment.initial(self.capture, path, frame))
             self.capture.environment = self.lighting.environment()
         elif self.config.lighting == "flash":
             self.lighting = Flash.initial(self.capture)
@@ -251,10 +256,11 @@ class Appearance:
             return
         self.driver.finalise(self._last_stage())
         reserve = self.config.relight_reserve
-        # a map on the camera rig is not fitted afresh: every view's highlights face the camera, and
-        # fresh fits there lost the views (relight.py), so its reserve goes to the final stages
+        # a map on the camera rig (alone or summed with a world map) is not fitted afresh: every
+        # view's highlights face the camera, and fresh fits there lost the views (relight.py), so
+        # its reserve goes to the final stages
         if (self.lighting is not None and material is not None and reserve is not None
-                and getattr(self.lighting, "frame", None) != MAP_FRAME["rig"]
+                and "camera" not in str(getattr(self.lighting, "frame", None))
                 and not (budget is not None and budget.out(reserve))):
             self.relight.start(self, mesh, material, views)
             self._lighting_event("restarted")

@@ -8,6 +8,7 @@ ones, and scored on those:
 
 - ``estimate``: an environment map fixed to the world (backend.lighting.estimated_map);
 - ``rig``: the same map fixed to each view's camera (lamps on the camera rig);
+- ``world+rig``: the two summed, fitted together (backend.lighting.summed_map);
 - ``flash``: a point light at every camera centre (backend.lighting.flash);
 - ``captured``: the capture's own map or point lights, when it records any.
 
@@ -18,7 +19,18 @@ the held-out views, the quantity whose -10 log10 is their PSNR, so the margin in
 ``SIZE`` px and few samples, so a candidate costs seconds. Its time counts in the run's time
 budget (the budget's clock starts with the command); with a budget, the probe takes at most
 ``BUDGET_SHARE`` of it, split between the candidates, each stopping after the cycle that
-reaches its share (at least one cycle each)."""
+reaches its share (at least one cycle each).
+
+The summed maps (``world+rig``) can light a capture as either map alone does and more, so
+they are ranked with a handicap (``SUMMED_HANDICAP_DB``): they win where both kinds of light
+are there, not by fitting the held-out frames' noise a little closer.
+
+A run-off makes the choice less fickle: three constant cycles leave the candidates short of
+where a run takes them, and on a capture that mixes room and rig light the first two came
+within a dB or so, in an order that flipped with the initial mesh, while full runs told them
+apart. So when the first two are within ``TIE_DB``, both are fitted again from their start for
+``RUNOFF_CYCLES`` cycles and the run-off's held-out loss decides; the report keeps both
+rounds (``runoff``). With a budget, the run-off takes ``RUNOFF_SHARE`` of the probe's share."""
 
 from __future__ import annotations
 
@@ -48,15 +60,22 @@ CYCLES = 3  # most cycles per candidate (the constant stage may end sooner)
 SPP = 8  # samples per pixel of the fits
 SCORE_SPP = 64  # of the held-out renders (a map lights from every direction: its noise must not decide)
 BUDGET_SHARE = 0.1  # the most of a time budget the probe takes
+TIE_DB = 1.5  # the first two this close (dB of held-out loss): a run-off between them
+RUNOFF_CYCLES = 6  # most constant cycles of each run-off fit
+RUNOFF_SHARE = 0.5  # of the probe's time share, kept for the run-off
+# the summed maps hold a single map's light and more: they are ranked as if their loss were
+# this many dB higher, so they win only where the second map earns its texels
+SUMMED_HANDICAP_DB = 0.5
 SEED = 9_000_011
-NAMES = {"estimate": "world map", "rig": "rig map", "flash": "flash at the camera", "captured": "captured lights"}
+NAMES = {"estimate": "world map", "rig": "rig map", "world+rig": "world + rig maps", "flash": "flash at the camera",
+         "captured": "captured lights"}
 
 
 def candidates(capture: Capture) -> list[str]:
     """The models ``capture`` allows: the captured lighting when it records a map or point
     lights, and the three fitted ones (which need nothing but the frames)."""
     own = capture.environment is not None or capture.has_point_lights
-    return (["captured"] if own else []) + ["estimate", "rig", "flash"]
+    return (["captured"] if own else []) + ["estimate", "rig", "world+rig", "flash"]
 
 
 def held_out(n: int, count: int = HELD_OUT) -> list[int]:
@@ -74,7 +93,18 @@ def _probe_config(config):
     """The run's settings as the probe fits with them: staged constant stage, direct light, tiny images."""
     return dataclasses.replace(config, material="staged", n_materials=1, known_albedo=None, map_calibrated=False,
                                exposure="off", spp=SPP, max_depth=2, coarse_size=SIZE, max_size=SIZE,
-                               light_first_cycles=CYCLES, track_accuracy=False)
+                               light_first_cycles=RUNOFF_CYCLES, track_accuracy=False)
+
+
+def _rank(result: dict) -> float:
+    """The loss a candidate is ranked by: its held-out loss, the summed maps' raised by
+    ``SUMMED_HANDICAP_DB``."""
+    return result["loss"] * (10 ** (SUMMED_HANDICAP_DB / 10) if result["model"] == "world+rig" else 1.0)
+
+
+def _margin(winner: dict, second: dict) -> float:
+    """10 log10(runner-up's ranked loss / winner's), dB (``_rank``)."""
+    return 10 * math.log10(_rank(second) / _rank(winner)) if winner["loss"] > 0 else math.inf
 
 
 def held_out_loss(renders: list[np.ndarray], views) -> float:
@@ -91,9 +121,9 @@ def held_out_loss(renders: list[np.ndarray], views) -> float:
 
 
 def _fit_and_score(mode: str, fit: Capture, held: Capture, mesh, config, seconds: float, folder: Path,
-                   views, held_views) -> dict:
-    """One candidate: fitted on ``fit``'s views for up to ``CYCLES`` constant cycles (stopping
-    once ``seconds`` are spent), scored on ``held``'s."""
+                   views, held_views, most_cycles: int = CYCLES) -> dict:
+    """One candidate: fitted on ``fit``'s views for up to ``most_cycles`` constant cycles
+    (stopping once ``seconds`` are spent), scored on ``held``'s."""
     start = time.perf_counter()
     fit = _copy(fit, fit.frames)
     held = _copy(held, held.frames)
@@ -111,7 +141,7 @@ def _fit_and_score(mode: str, fit: Capture, held: Capture, mesh, config, seconds
     material = appearance.initial_material(mesh, views)
     material.disable("specular")
     cycles = 0
-    while cycles < CYCLES and appearance.driver.stage == "constant":
+    while cycles < most_cycles and appearance.driver.stage == "constant":
         if appearance.material_cycle(mesh, material, views, level=0) is None:
             break
         cycles += 1
@@ -164,21 +194,29 @@ def choose(capture: Capture, config, emit, budget_s: float | None = None, modes:
     held_views = ViewSet(held, SIZE).at(SIZE)
     share = math.inf if budget_s is None else BUDGET_SHARE * budget_s - (time.perf_counter() - start)
     results = []
+    runoff = None
     with tempfile.TemporaryDirectory(prefix="sft-lighting-") as folder:
+        first_share = share * (1 - RUNOFF_SHARE)
         for k, mode in enumerate(modes):
-            seconds = share / len(modes)
-            results.append(_fit_and_score(mode, fit, held, mesh, cfg, seconds, Path(folder), views, held_views))
+            results.append(_fit_and_score(mode, fit, held, mesh, cfg, first_share / len(modes), Path(folder),
+                                          views, held_views))
             emit("progress", stage="lighting:probe", level=0, iteration=k + 1, iterations=len(modes),
                  loss=results[-1]["loss"], faces=mesh.n_faces)
-    ranked = sorted(results, key=lambda r: r["loss"])
+        ranked = sorted(results, key=_rank)
+        if _margin(ranked[0], ranked[1]) < TIE_DB:
+            left = share - (time.perf_counter() - start) if budget_s is not None else math.inf
+            runoff = [_fit_and_score(r["model"], fit, held, mesh, cfg, left / 2, Path(folder), views, held_views,
+                                     RUNOFF_CYCLES) for r in ranked[:2]]
+            ranked = sorted(runoff, key=_rank) + ranked[2:]
     winner, second = ranked[0], ranked[1]
-    margin = 10 * math.log10(second["loss"] / winner["loss"]) if winner["loss"] > 0 else math.inf
-    for r in results:
+    margin = _margin(winner, second)
+    for r in results + (runoff or []):
         r["loss"] = round(r["loss"], 8)
     out = {"winner": winner["model"], "runner_up": second["model"], "margin_db": round(margin, 3),
-           "candidates": results, "held_out": [capture.frames[i].name for i in sorted(ids)], "size": SIZE,
-           "faces": mesh.n_faces, "seconds": round(time.perf_counter() - start, 3),
-           "line": f"lighting: {winner['name']}, by {margin:.1f} dB over the {second['name']}"}
+           "candidates": results, "runoff": runoff, "held_out": [capture.frames[i].name for i in sorted(ids)],
+           "size": SIZE, "faces": mesh.n_faces, "seconds": round(time.perf_counter() - start, 3),
+           "line": f"lighting: {winner['name']}, by {margin:.1f} dB over the {second['name']}"
+                   + (" (run-off)" if runoff else "")}
     emit(EVENT, **out)
     return out
 

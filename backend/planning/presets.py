@@ -37,7 +37,7 @@ def lighting_kind(capture, lighting: str = "captured") -> str:
     environment map lights it (captured, or ``lighting`` 'estimate': one is fitted; 'auto' before
     its probe has chosen), else
     'point' (point lights or a flash)."""
-    if lighting in ("estimate", "rig", "auto") or (capture is not None and capture.environment is not None):
+    if lighting in ("estimate", "rig", "world+rig", "auto") or (capture is not None and capture.environment is not None):
         return "environment"
     return "point"
 

@@ -186,7 +186,7 @@ def predict(name: str, config, costs: StepCosts, pixels_at, n_views: int, staged
     polish = 0.0
     count = getattr(c, "n_materials", 1)  # material masks are not seen here
     several = isinstance(count, int) and count > 1
-    if staged and plan and (c.lighting in ("estimate", "rig", "flash") or several):  # constants first, initial mesh
+    if staged and plan and (c.lighting in ("estimate", "rig", "world+rig", "flash") or several):  # constants first, initial mesh
         material += c.light_first_cycles * cycle_seconds(costs, pixels_at(plan[0].size), plan[0].faces, n_views)
     cap_ends = c.iterations is not None and sum(lv.steps for lv in plan) >= c.iterations
     if staged and plan and not cap_ends:  # an iteration cap ends a run with its levels' cycles

@@ -149,6 +149,11 @@ class SceneRenderer:
         self.rig = ([rig_environment_to_world(environment, c) for c in cameras]
                     if environment is not None and environment.frame == "camera" else None)
         self._rig_view = None
+        # a summed world + camera map: the envmap is set to their sum before each render
+        self.summed = None
+        if environment is not None and environment.frame == "world+camera":
+            from ..lighting.summed_map import SummedMaps
+            self.summed = SummedMaps(environment, cameras, env_pixels)
         scene.update(extra_shapes or {})
         self.scene = mi.load_dict(scene)
         self.params = mi.traverse(self.scene)
@@ -207,6 +212,8 @@ class SceneRenderer:
         when built with ``rgba``; differentiable w.r.t. ``params``."""
         self._set_lights(view)
         self._set_rig(view)
+        if self.summed is not None:
+            self.summed.write(self, view, params)
         return mi.render(self.scene, params if params is not None else self.params,
                          sensor=self.sensors[view], seed=seed, spp=spp or self.settings.spp)
 

@@ -4,10 +4,14 @@ the Reconstruct panel says what it fits."""
 
 from __future__ import annotations
 
+import json
 import types
 from importlib import import_module
 
 import bpy
+import numpy as np
+
+from backend.capture.images import write_image
 
 from .test_panels import RecordingLayout
 
@@ -52,3 +56,37 @@ def test_lighting_on_the_camera_puts_lighting_rig_on_the_command_line_and_leaves
     note = reconstruct._load_estimated_lighting(context, run)
     assert "camera rig" in note and context.scene.world is world
     sft.lighting = "ESTIMATE"
+
+
+def test_auto_is_the_default_and_world_plus_camera_puts_lighting_world_rig_on_the_command_line(context, extension,
+                                                                                                tmp_path):
+    """With no map and no lights imported the Lighting menu is on Auto (``--lighting auto``);
+    "Estimate, world + camera" becomes ``--lighting world+rig``, and after its run the World
+    shows the world-fixed map (RUN/environment.exr), the camera-fixed one left in the run folder."""
+    reconstruct = import_module(f"{extension.__name__}.addon.operators.reconstruct")
+    sft = context.scene.sft
+    items = {item.identifier: item.name for item in sft.bl_rna.properties["lighting"].enum_items}
+    assert items["AUTO"] == "Auto" and items["WORLD_RIG"] == "Estimate, world + camera"
+    assert sft.bl_rna.properties["lighting"].default == "AUTO" and sft.lighting == "AUTO"
+    argv = reconstruct.method_args(sft)
+    assert argv[argv.index("--lighting") + 1] == "auto" and "--env" not in argv
+    log = []
+    bpy.types.SFT_PT_reconstruct.draw(types.SimpleNamespace(layout=RecordingLayout(log)), context)
+    assert any(entry[1].startswith("Chosen by a short probe") for entry in log if entry[0] == "label")
+    sft.lighting = "WORLD_RIG"
+    argv = reconstruct.method_args(sft)
+    assert argv[argv.index("--lighting") + 1] == "world+rig" and "--env" not in argv
+    log = []
+    bpy.types.SFT_PT_reconstruct.draw(types.SimpleNamespace(layout=RecordingLayout(log)), context)
+    assert any(entry[1].startswith("A world-fixed map plus a camera-fixed one") for entry in log if entry[0] == "label")
+    run = tmp_path / "run"
+    run.mkdir()
+    write_image(run / "environment.exr", np.full((8, 16, 3), 0.5, np.float32))
+    (run / "report.json").write_text(json.dumps({"lighting": {"model": "environment map (estimated)",
+                                                              "frame": "world+camera", "file": "environment.exr",
+                                                              "rig_file": "environment_rig.exr"}}))
+    note = reconstruct._load_estimated_lighting(context, run)
+    assert "environment_rig.exr" in note and "World lit" in note
+    nodes = [n.bl_idname for n in context.scene.world.node_tree.nodes]
+    assert "ShaderNodeTexEnvironment" in nodes
+    sft.lighting = "AUTO"

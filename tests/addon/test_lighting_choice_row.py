@@ -11,6 +11,8 @@ def test_the_winner_and_its_margin_become_one_line():
                   "candidates": []})
     assert state.lighting_choice == "lighting: rig map, by 1.2 dB"
     assert lighting_choice_summary({"winner": "estimate", "margin_db": None}) == "lighting: world map (not probed)"
+    assert lighting_choice_summary({"winner": "world+rig", "margin_db": 2.0, "runoff": [{}, {}]}) == \
+        "lighting: world + rig maps, by 2.0 dB (run-off)"
     state.update({"event": "lighting", "model": "estimate", "frame": "camera", "resolution": [16, 8],
                   "when": "fitted", "stage": "constant"})
     assert state.lighting_choice == "lighting: rig map, by 1.2 dB"  # a later lighting event leaves the row

@@ -378,6 +378,8 @@ def test_lighting_events_are_summarised_for_the_panel():
     assert state.lighting == "estimated map 16x8, fitted again on the final surface"
     state.update(dict(base, when="restored", stage=None))
     assert state.lighting.endswith("the fit before the final surface kept (the refit fitted the views worse)")
+    state.update(dict(base, when="fitted", stage="constant", frame="world+camera"))
+    assert state.lighting == "world map + camera rig map 16x8, fitted (constant)"
     state.update({"event": "lighting", "model": "flash", "when": "fitted", "stage": "constant", "intensity": 2.0})
     assert state.lighting == "flash, fitted (constant)"
 

@@ -85,12 +85,12 @@ def test_panels_draw_in_an_empty_scene(context):
     assert ("operator", "sft.solve_cameras", True) in log["SFT_PT_cameras"]
     assert ("operator", "sft.reconstruct", True) in log["SFT_PT_reconstruct"]
     labels = [entry[1] for entry in log["SFT_PT_reconstruct"] if entry[0] == "label"]
-    # the default lighting estimates a map: the HDR-lit kind's figures where the file has them
+    # the default lighting (Auto) fits a map or a flash: the HDR-lit kind's figures where the file has them
     titles = (("draft", "Draft"), ("balanced", "Balanced"), ("final", "Final"))
     assert labels[:3] == [f"{title}: {expected_cost(key, 'environment')}" for key, title in titles]
     assert ("Times measured on an HDR-lit object" if shipped_kind("environment")[1] else
             "Times measured on a point-lit object; HDR-lit captures take longer") in labels
-    assert any(label.startswith("Lighting estimated with the material") for label in labels)  # the default
+    assert any(label.startswith("Chosen by a short probe") for label in labels)  # the default: Auto
     props = [entry[1] for entry in log["SFT_PT_reconstruct"] if entry[0] == "prop"]
     assert props == ["preset", "time_budget", "track_accuracy", "material", "init", "effects", "lighting",
                      "show_labels"], "the method's settings and the labels overlay's toggle, no free text"

@@ -97,10 +97,10 @@ def test_reconstruct_plan_and_solve_exclude_each_other(context, addon, tmp_path,
 
 def test_a_capture_with_point_lights_sets_lighting_to_them(context, tmp_path):
     sft = context.scene.sft
-    assert sft.lighting == "ESTIMATE"
+    assert sft.lighting == "AUTO"
     plain = _capture(tmp_path / "plain", lights=False)
     assert bpy.ops.sft.import_cameras(filepath=str(plain / "capture.json")) == {"FINISHED"}
-    assert sft.lighting == "ESTIMATE"  # no lights of its own: the map is still to be estimated
+    assert sft.lighting == "AUTO"  # no lights of its own: the lighting is still to be chosen
     lit = _capture(tmp_path / "lit", lights=True)
     assert bpy.ops.sft.import_cameras(filepath=str(lit / "capture.json")) == {"FINISHED"}
     assert sft.lighting == "CAPTURED"
