@@ -94,7 +94,8 @@ def recovery(capture_root: Path, *, rotation_deg: float = 1.0, translation_pct: 
                                   newton=newton if r == rounds - 1 else 0))
     after = {**pose_errors(fit.cameras(), truth, centre), "reprojection_px": reproj(fit.cameras())}
     unaligned = pose_errors(fit.cameras(), truth, centre, align=False)
-    return {"before": before, "after": after, "after_unaligned": unaligned, "seconds": round(time.perf_counter() - start, 2),
+    return {"before": before, "after": after, "after_unaligned": unaligned,
+            "seconds": round(time.perf_counter() - start, 2),
             "history": history, "focal_scale": float(np.exp(fit.correction.sigma)),
             "principal": fit.correction.principal.tolist()}
 

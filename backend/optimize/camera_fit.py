@@ -256,7 +256,8 @@ class CameraFit:
         self.refinements += 1
         self.reverted += int(worse.sum())
         record = {"size": int(max(base[0].camera.width, base[0].camera.height)), "sweeps": sweeps,
-                  "newton": int(newton), "newton_seconds": round(newton_seconds, 2), "loss_start": float(start_loss.mean()), "loss_end": float(end_loss.mean()),
+                  "newton": int(newton), "newton_seconds": round(newton_seconds, 2),
+                  "loss_start": float(start_loss.mean()), "loss_end": float(end_loss.mean()),
                   "frames_kept_back": int(worse.sum()), "diverged": self.diverged}
         self.history.append(record)
         return record
