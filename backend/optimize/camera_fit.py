@@ -62,6 +62,7 @@ from ..capture.model import Camera
 from ..render.scene import environment_to_world
 from .camera_model import (Correction, chain, corrected_camera, delta, log_rotation, pose_grads, reprojection_px,
                            rotation, vertex_map)
+from . import camera_newton as gn
 from .objective import Objective, seed_for
 from .views import View, scaled_camera
 
@@ -160,12 +161,14 @@ class CameraFit:
 
     # -- refinement --------------------------------------------------------------------------------
     def refine(self, mesh, material, views: list[View], settings, environment, *, sweeps: int = SWEEPS,
-               seed: int = 0, tone: str = "log", intrinsics: bool = True, check_stop=None,
+               seed: int = 0, tone: str = "log", intrinsics: bool = True, newton: int = 0, check_stop=None,
                objective_factory=Objective) -> dict:
         """One refinement of every frame's pose and the intrinsics against ``views`` (the
         capture's frames in order, at one size; their targets as the fit sees them) with
         ``mesh`` and ``material`` frozen (see the module). Updates ``correction``; returns this
-        refinement's summary (losses before and after, frames taken back)."""
+        refinement's summary (losses before and after, frames taken back). ``newton`` > 0
+        follows the sweeps with that many Gauss-Newton steps on each frame's pose
+        (``camera_newton``; the intrinsics held)."""
         n = len(views)
         base = [dataclasses.replace(v, camera=scaled_camera(self.start[i], v.camera.width, v.camera.height))
                 for i, v in enumerate(views)]
@@ -234,6 +237,11 @@ class CameraFit:
                 k.sigma = float(k.sigma + adam_f.step(g_sigma, lr_focal * decay))
                 k.principal = k.principal + adam_p.step(g_a, lr_pose * decay)
             k.clamp()
+        newton_start = time.perf_counter()
+        for i in range(n if newton > 0 else 0):
+            self._newton(i, k, newton, objective, base[i].camera, place, points, float(l0[i]), settings.spp, seed,
+                         check_stop)
+        newton_seconds = time.perf_counter() - newton_start
         end_loss = np.array([loss_of(i, k) if k.finite() else np.nan for i in range(n)])
         worse = ~np.isfinite(end_loss) | (end_loss > start_loss * WORSE)
         if not k.finite() or worse.all():
@@ -248,10 +256,59 @@ class CameraFit:
         self.refinements += 1
         self.reverted += int(worse.sum())
         record = {"size": int(max(base[0].camera.width, base[0].camera.height)), "sweeps": sweeps,
+                  "newton": int(newton), "newton_seconds": round(newton_seconds, 2),
                   "loss_start": float(start_loss.mean()), "loss_end": float(end_loss.mean()),
                   "frames_kept_back": int(worse.sum()), "diverged": self.diverged}
         self.history.append(record)
         return record
+
+    def _newton(self, i: int, k: Correction, steps: int, objective, camera: Camera, place, points: np.ndarray,
+                l0: float, spp: int, seed: int, check_stop) -> None:
+        """``steps`` Levenberg-Marquardt steps on frame ``i``'s pose in ``k`` (``camera_newton``):
+        a step is kept only when the loss (the same seed and samples before and after) plus the
+        prior falls; a rejected step is retried once at ten times the damping. The prior is the
+        sweeps' with the frame's loss when the steps begin (at most ``l0``) as its unit: the
+        misregistration the start's loss held is gone by then, and a prior in its units would
+        outweigh the shallow direction's curvature."""
+        focus, distance = self.focus[i], float(self.distance[i])
+        weight = [PRIOR * l0]
+
+        def prior(p):
+            return gn.prior_residual(p, focus, distance, weight[0], SIGMA_ROT, SIGMA_T)
+
+        def moved(p):
+            m, b, _ = vertex_map(camera, *delta(p[:3], p[3:5], float(p[5]), focus), k.sigma, k.principal)
+            return points @ m.T + b
+
+        lam, spp_hi = gn.LAMBDA0, gn.RESIDUAL_SPP * spp
+        for step in range(steps):
+            if check_stop is not None:
+                check_stop()
+            p = gn.pose_vector(k, i)
+            seed_r, seed_j = seed_for(seed, 5_000_000 + step, i), seed_for(seed, 6_000_000 + step, i)
+            q, _ = place(i, k)
+            res = gn.residual(objective, i, q, seed_r, spp_hi)
+            jac = gn.image_jacobian(objective, i, q, np.moveaxis(gn.jacobian_fd(moved, p), -1, 0), seed_j)
+            if not (np.all(np.isfinite(res)) and np.all(np.isfinite(jac))):
+                return
+            if step == 0:  # near the optimum the prior's weight follows the loss there, not the start's
+                weight[0] = PRIOR * min(l0, float(np.mean(res**2)))
+            e, jac_e = prior(p), gn.jacobian_fd(prior, p)
+            current = float(np.mean(res**2) + 0.5 * e @ e)
+            for _ in range(2):
+                trial = k.copy()
+                gn.set_pose(trial, i, p + gn.lm_step(jac, res, e, jac_e, lam))
+                trial.clamp()
+                pt = gn.pose_vector(trial, i)
+                qt, _ = place(i, trial)
+                et = prior(pt)
+                new = float(np.mean(gn.residual(objective, i, qt, seed_r, spp_hi) ** 2) + 0.5 * et @ et)
+                if np.isfinite(new) and new < current:
+                    gn.set_pose(k, i, pt)
+                    lam = max(lam / 3.0, 1e-6)
+                    break
+                lam *= 10.0
+        place(i, k)
 
     # -- outputs -----------------------------------------------------------------------------------
     def state(self) -> dict:
@@ -340,6 +397,7 @@ class CameraRefinement:
             return
         start = time.perf_counter()
         record = self.fit.refine(state.mesh, material, views, settings, environment, sweeps=self.config.camera_sweeps,
+                                 newton=self.config.camera_newton,
                                  seed=self.config.seed + state.level, tone=self.config.tone, check_stop=check_stop)
         self.apply()
         state.timed("cameras", start)

@@ -30,6 +30,7 @@ class ReconstructConfig:
     # sweeps over every view in one refinement
     refine_cameras: str = "auto"
     camera_sweeps: int = 6
+    camera_newton: int = 3  # Gauss-Newton steps on each frame's pose after the sweeps (camera_newton)
     # what sets the albedo's scale (backend.lighting.convention.AlbedoScale): a captured map's
     # strength kept (no brightness factor fitted), or the level of the object's median albedo
     map_calibrated: bool = False
