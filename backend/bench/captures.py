@@ -264,7 +264,8 @@ def _write_pieces_record(results: list[dict], args) -> None:
         context=f"held-out PSNR/SSIM within the masks, {args.minutes:g} min at {args.max_size} px per run; base: no "
                 "exposure, no camera refinement, the capture's fixed lighting, no texture stage; each piece alone on "
                 "base; all: every piece",
-        rows=[{"run": f"{r['capture']}/{r['piece']}", "lighting": r["lighting"], "faces": r["faces"],
+        rows=[{"run": f"{r['capture']}/{r['piece']}", "commit": _records.code_version(),
+               "lighting": r["lighting"], "faces": r["faces"],
                "held-out dB": round(r["held_out_psnr"], 2) if r["held_out_psnr"] is not None else None,
                "held-out SSIM": round(r["held_out_ssim"], 3) if r["held_out_ssim"] is not None else None,
                "fitted-view dB": round(r["fitted_psnr"], 2) if r["fitted_psnr"] is not None else None,
