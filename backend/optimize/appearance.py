@@ -67,6 +67,10 @@ class Appearance:
         # levels' sizes), then applied again at every later decision
         self.costs: dict | None = None
         self.costs_from: str | None = None  # the decision that measured them
+        # a new run's first cost probe runs after the first level's first steps (the run sets
+        # this; ``run_pending_costs``); (probe, EffectsConfig, cache key, reason) while it waits
+        self.defer_costs = False
+        self.pending: tuple | None = None
         # the lighting fitted with the material: --lighting estimate's map, --lighting flash's flash
         self.lighting: EstimatedEnvironment | Flash | None = None
         self.relight = Relight()
@@ -348,23 +352,41 @@ class Appearance:
         key = (decision_cache.key(self.capture, self.config, mesh, material, views, reason)
                if self.measure and self.decision is None else None)
         cached = None if key is None else decision_cache.load(self.capture, key)
+        if cached is not None and cached[0].measured.get("costs") == "pending" and not self.defer_costs:
+            cached = None  # kept by a run stopped before its cost probe: this one measures now
         if cached is not None:
             self.decision, self.costs = cached
+            if self.decision.measured.get("costs") == "pending":  # its cost probe is still to run
+                self.pending = self._deferred(mesh, material, views, cfg, key, reason)
         else:
             probe = [v for v in views]
             renderer = self._renderer(mesh, material, probe, geometry=False, settings=RenderSettings(spp=cfg.spp))
+            cost_probe = self._cost_probe(mesh, material, views)
+            # the first decision's cost probe waits for the first level's first steps (``deferred``):
+            # a capture's first run then starts stepping without it
+            defer = self.defer_costs and self.decision is None and self.costs is None and cost_probe is not None
             self.decision = effects.decide(
                 renderer, [v.target for v in probe],
                 [v.mask if v.mask is not None else np.ones(v.target.shape[:2]) for v in probe],
-                _emitters(self.capture), cfg, self.overrides, self.measure, probe=self._cost_probe(mesh, material, views))
-            if key is not None:
-                decision_cache.store(self.capture, key, self.decision, self.costs)
+                _emitters(self.capture), cfg, self.overrides, self.measure, probe=None if defer else cost_probe)
+            if defer and self.decision.measured.get("self_shadowing") is not None:
+                self.pending = self._deferred(mesh, material, views, cfg, key, reason, cost_probe)
+                if "shadows" not in self.overrides:
+                    self.decision.shadows = False  # the probe's base: the cheap step until it has spoken
+                self.decision.measured["costs"] = "pending"
+                self.decision.reasons["shadows"] += "; off until the cost probe has run"
+                if key is not None:  # a run stopped before the probe leaves the rest of the decision
+                    decision_cache.store(self.capture, key, self.decision, None)
+            else:
+                self.pending = None  # a fresh decision took its own probe
+                if key is not None:
+                    decision_cache.store(self.capture, key, self.decision, self.costs)
         if found and not self.decision.specular and "specular" not in self.overrides:
             # a lobe found stays: the lighting and albedo fitted since have taken up part of the
             # highlights, which the test measures against diffuse shading under that lighting
             self.decision.specular = True
             self.decision.reasons["specular"] += "; kept on: highlights were measured earlier in the run"
-        if "costs" in self.decision.measured:
+        if isinstance(self.decision.measured.get("costs"), dict):
             self.costs_from = self.costs_from or reason
             self.decision.measured["costs_measured_at"] = self.costs_from
         lobe_on = self.decision.specular and self.specular_off
@@ -376,6 +398,56 @@ class Appearance:
             self.specular_off = False
         seconds = time.perf_counter() - start
         self.seconds += seconds
+        self._announce(reason, seconds)
+        if lobe_on and self.driver is not None:
+            fit_start = time.perf_counter()
+            renderer = self._renderer(mesh, material, views, geometry=False)
+            self.driver.lobe_on(renderer, [v.target for v in views], self._masks(views), material, self.emit)
+            self.seconds += time.perf_counter() - fit_start
+
+    @property
+    def costs_pending(self) -> bool:
+        """Whether the first decision's cost probe is still to run (``run_pending_costs``)."""
+        return self.pending is not None
+
+    def run_pending_costs(self) -> bool:
+        """The first decision's cost probe, deferred past the first level's first steps: the
+        same probe on the same initial mesh, views and seeds as it would have run before them
+        (so the same verdicts where its timings agree), its verdicts applied to the decision,
+        the decision kept in the capture's cache and announced (``effects`` event, reason
+        "<reason>: cost probe"). Returns whether the geometry steps' settings changed."""
+        if self.pending is None:
+            return False
+        probe, cfg, key, reason, material, held = self.pending
+        self.pending = None
+        start = time.perf_counter()
+        now = {n: np.array(z, copy=True) for n, z in material.parameters().items()}
+        before = self.decision.settings(RenderSettings.for_geometry(self.config), geometry=True)
+        self.decision.measured.pop("costs", None)
+        self.decision.reasons["shadows"] = self.decision.reasons["shadows"].replace(
+            "; off until the cost probe has run", "")
+        material.load_parameters(held)
+        try:
+            effects.weigh_costs(self.decision, probe, cfg, self.overrides)
+        finally:
+            material.load_parameters(now)
+        seconds = time.perf_counter() - start
+        self.decision.measured["seconds"] = {**self.decision.measured.get("seconds", {}), "costs": round(seconds, 3)}
+        if key is not None:
+            decision_cache.store(self.capture, key, self.decision, self.costs)
+        self.costs_from = self.costs_from or reason
+        self.decision.measured["costs_measured_at"] = self.costs_from
+        self.seconds += seconds
+        self._announce(f"{reason}: cost probe", seconds)
+        return self.decision.settings(RenderSettings.for_geometry(self.config), geometry=True) != before
+
+    def _deferred(self, mesh, material, views, cfg, key, reason, cost_probe=None) -> tuple:
+        """What ``run_pending_costs`` needs: the probe on ``mesh`` and ``views``, and the material
+        as it is now (the first steps train it; the probe measures on this one)."""
+        held = {n: np.array(z, copy=True) for n, z in material.parameters().items()}
+        return (cost_probe or self._cost_probe(mesh, material, views), cfg, key, reason, material, held)
+
+    def _announce(self, reason: str, seconds: float) -> None:
         enabled = {"max_depth": self.decision.max_depth, "shadows": self.decision.shadows,
                    "specular": self.decision.specular, "silhouettes": self.decision.silhouettes,
                    "emitters": self.decision.emitters}
@@ -383,11 +455,6 @@ class Appearance:
                   "why": self.decision.reasons, "forced": self.decision.forced, "seconds": round(seconds, 3)}
         self.history.append(record)
         self.emit("effects", **record)
-        if lobe_on and self.driver is not None:
-            fit_start = time.perf_counter()
-            renderer = self._renderer(mesh, material, views, geometry=False)
-            self.driver.lobe_on(renderer, [v.target for v in views], self._masks(views), material, self.emit)
-            self.seconds += time.perf_counter() - fit_start
 
     def _cost_probe(self, mesh, material, views, n_views: int = 4):
         """The effects decision's cost probe (effects.weigh_costs): geometry steps on

@@ -45,6 +45,9 @@ class Fit:
     # checkpoint(vertices, loss, validation loss): the run's snapshot and held-out score when due
     checkpoint: Callable[[np.ndarray, float, float | None], None]
     objective_factory: Callable = Objective
+    # after each geometry step: the render settings later steps take when they change (the
+    # first decision's deferred cost probe, ``Appearance.run_pending_costs``), else None
+    after_step: Callable[[int], RenderSettings | None] = lambda geometry_steps: None
 
 
 def latents(material) -> dict[str, np.ndarray]:
@@ -220,6 +223,18 @@ class LevelRun:
                     if done:
                         break
                 fit.checkpoint(vertices, loss, self.validation)
+                changed = fit.after_step(s.level_iteration - warmup) if geometry else None
+                if changed is not None and changed != settings:
+                    # new settings: a new objective, and the plateau restarts from its loss (a
+                    # deeper path or shadow samples change what the loss measures)
+                    settings = changed
+                    objective = fit.objective_factory(Mesh(vertices, s.mesh.faces), fit.material, views, settings,
+                                                      environment, tone=c.tone)
+                    shadows = ShadowSamples(settings.sppi if hasattr(objective, "set_shadow_samples") else 0)
+                    self.validation = objective.validation_loss(vertices, val_ids, val_seed, c.validation_spp)
+                    plateau = self.plateau = Plateau(c.plateau_tolerance, self.patience())
+                    plateau.update(self.validation)
+                    self.best = (vertices.copy(), latents(fit.material))
         finally:
             if shadows.chosen is not None:  # what the kept count cost over all of the level's steps
                 self.shadows = shadows.to_json()

@@ -38,6 +38,10 @@ from .views import ViewSet
 # a cycle of the last material stage costs about this many cycles of an earlier one (it
 # fits specular and roughness textures besides the albedo)
 LAST_STAGE_COST = 1.5
+# a new run's first cost probe (the effects decision's shadow-gradient and extra-bounce
+# verdicts) runs after this many geometry steps of the first level, which take the cheap
+# settings (no shadow gradients, the measured depth): the first step comes without it
+COST_PROBE_AFTER = 1
 
 
 def reconstruct(capture: Capture, out: RunFolder, config: ReconstructConfig, events, *, resume: bool = False,
@@ -175,6 +179,7 @@ class Reconstruction:
         self.material = self.appearance.initial_material(s.mesh, coarse, given=self.material)
         s.material_kind = self.material.KIND
         lit = self.appearance.light_first(s.mesh, self.material, coarse)
+        self.appearance.defer_costs = True
         self.appearance.decide(s.mesh, self.material, coarse, reason="initial mesh")
         self.stiffness = choose_stiffness(self.config, coarse, spatially_varying=self.appearance.staged)
         self.emit("stiffness", **self.stiffness.event())
@@ -267,7 +272,17 @@ class Reconstruction:
     def _fit(self) -> Fit:
         return Fit(self.capture, self.config, self.state, self.viewset, self.material, self.budget, self.stiffness,
                    self.appearance.geometry_settings(RenderSettings.for_geometry(self.config)), self.emit, self.paced.progress, self.folder.check_stop, self._checkpoint,
-                   self.objective_factory)
+                   self.objective_factory, self._after_step)
+
+    def _after_step(self, geometry_steps: int) -> RenderSettings | None:
+        """After the first level's ``COST_PROBE_AFTER``-th geometry step: the first decision's
+        deferred cost probe; the geometry settings that follow it when they changed."""
+        if not self.appearance.costs_pending or geometry_steps < COST_PROBE_AFTER:
+            return None
+        start = time.perf_counter()
+        changed = self.appearance.run_pending_costs()
+        self.state.timed("effects", start)
+        return self.appearance.geometry_settings(RenderSettings.for_geometry(self.config)) if changed else None
 
     def _checkpoint(self, vertices, loss: float, validation: float | None) -> None:
         """Inside a level: a snapshot every ``snapshot_interval`` and the held-out views scored
