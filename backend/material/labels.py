@@ -138,25 +138,53 @@ def cluster_labels(images: list[np.ndarray], object_masks: list[np.ndarray], k: 
 def choose_material_count(images: list[np.ndarray], object_masks: list[np.ndarray] | None, most: int = 4,
                           gain: float = 0.25, seed: int = 0, max_pixels: int = 50_000) -> int:
     """How many materials the frames' object colours show: the smallest k after which one more
-    cluster no longer leaves less than ``gain`` of the within-cluster variance (k-means on
-    :func:`cluster_labels`' features). One textured material spreads its colours in one lump
-    (two means leave 36 % of a Gaussian's variance) and stays at one; two distinct paints leave
-    far less at k = 2."""
+    cluster no longer leaves less than ``gain`` of the within-cluster variance, k-means on the
+    object pixels' chromaticity alone (:func:`chromaticity`). A per-pixel brightness scale
+    (shading, a lamp's falloff, a texture's light and dark) leaves chromaticity unchanged, so
+    it cannot pose as a second paint, nor spread two paints' lumps until they read as one;
+    :func:`cluster_labels`, given a count, still clusters with log brightness. One material
+    spreads its chromaticities in one lump (two means leave 68 % of a round 2-D Gaussian's
+    variance) and stays at one; distinct paints leave far less at their count. Paints that
+    differ in brightness only (white and black) are one material here. Pixels darker than
+    ``DARK_SHARE`` of the bright end (the 90th percentile of r + g + b) are left out: their
+    chromaticity is mostly noise and quantisation. A spread in chromaticity under
+    ``CHROMA_SPREAD`` (root mean square) is one material."""
     if object_masks is None:
         return 1
-    feats = np.concatenate([_colour_features(np.asarray(img, np.float64)[m >= OBJECT_THRESHOLD])
-                            for img, m in zip(images, object_masks)])
-    if len(feats) < 10 * most:
+    rgb = np.concatenate([np.asarray(img, np.float64)[..., :3][m >= OBJECT_THRESHOLD]
+                          for img, m in zip(images, object_masks)])
+    if len(rgb) < 10 * most:
         return 1
+    s = rgb.sum(-1)
+    rgb = rgb[s >= DARK_SHARE * np.percentile(s, 90)]
+    if len(rgb) < 10 * most:
+        return 1
+    feats = chromaticity(rgb)
     rng = np.random.default_rng(seed)
     sub = feats[rng.choice(len(feats), min(len(feats), max_pixels), replace=False)]
     inertia = [float(((sub - sub.mean(0)) ** 2).sum())]
+    if inertia[0] < len(sub) * CHROMA_SPREAD ** 2:
+        return 1
     for k in range(2, most + 1):
         inertia.append(kmeans(sub, k, rng)[2])
     k = 1
     while k < most and inertia[k] < gain * inertia[k - 1]:
         k += 1
     return k
+
+
+# choose_material_count: pixels below this share of the bright end's r + g + b are not counted
+# (a dark pixel's chromaticity is a ratio of small, noisy values), and a chromaticity spread
+# (RMS) below CHROMA_SPREAD is one paint (k-means would otherwise split rounding noise)
+DARK_SHARE = 0.2
+CHROMA_SPREAD = 0.01
+
+
+def chromaticity(rgb: np.ndarray) -> np.ndarray:
+    """(N, 3) linear RGB -> (N, 2) chromaticity (r, g) / (r + g + b): unchanged by any per-pixel
+    brightness scale."""
+    s = np.maximum(rgb.sum(-1, keepdims=True), 1e-6)
+    return rgb[:, :2] / s
 
 
 def _colour_features(rgb: np.ndarray) -> np.ndarray:

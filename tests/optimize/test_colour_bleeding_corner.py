@@ -77,13 +77,28 @@ def corner_run(corner, tmp_path_factory) -> Path:
     # bright in the channels its paint lacks, and the geometry steps push it away from the lamp,
     # behind the carved start; the textured albedo then paints the bounce the far wall no longer
     # throws onto the floor into the floor's own albedo (docs/notes/2026-12-02-corner-tint.md).
-    # `--materials auto` counts two paints here.
+    # `--materials auto` counts the three on chromaticity, which the lamp's falloff leaves alone.
     run = tmp_path_factory.mktemp("corner_run") / "run"
     proc = run_cli("reconstruct", corner, "--out", run, "--effects", "auto", "--max-size", 40, "--coarse-size", 20,
                    "--initial-faces", 1500, "--spp", 8, "--time-budget", 2.0, "--remesh", "never",
-                   "--materials", 3, timeout=400)
+                   "--materials", "auto", timeout=400)
     assert proc.returncode == 0, proc.stderr[-3000:]
     return run
+
+
+def _material_ids(doc) -> list | None:
+    """The material ids of the run's labels, wherever the report keeps the material schedule."""
+    if isinstance(doc, dict):
+        if "material_schedule" in doc:
+            return doc["material_schedule"]["labels"]["materials"]
+        doc = list(doc.values())
+    if isinstance(doc, list):
+        return next((ids for ids in map(_material_ids, doc) if ids is not None), None)
+    return None
+
+
+def test_the_automatic_count_finds_the_three_paints(corner_run):
+    assert _material_ids(json.loads((corner_run / "report.json").read_text())) == [1, 2, 3]
 
 
 def test_the_corner_run_goes_on_with_interreflection_to_one_surface(corner_run):
