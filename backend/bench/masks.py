@@ -62,8 +62,9 @@ def add_arguments(parser):
     parser.add_argument("--ground-below", type=float, default=None,
                         help="masks: sure background where the ground's photo-consistency difference is below this "
                              "(0..255; MaskOptions.ground_below)")
-    parser.add_argument("--object-above", type=float, default=None,
-                        help="masks: sure foreground where it is above this (MaskOptions.object_above)")
+    parser.add_argument("--object-above", type=float, default=MaskOptions().object_above,
+                        help="masks: sure foreground where it is above this (MaskOptions.object_above; a "
+                             "negative value: not used)")
     parser.add_argument("--f1-scene", default=None, help="scene whose reconstruct F1 is compared, automatic against "
                                                          "true masks (default: the first scene)")
     parser.add_argument("--f1-minutes", type=float, default=1.0,
@@ -205,7 +206,9 @@ def run(args) -> int:
     rows, f1 = [], {}
     for scene in scenes:
         folder = render(args, scene)
-        options = MaskOptions(ground_below=args.ground_below, object_above=args.object_above)
+        options = MaskOptions(ground_below=args.ground_below,
+                              object_above=args.object_above if args.object_above is not None and
+                              args.object_above >= 0 else None)
         result = measure(folder, args.out / f"{scene}-work", options, fresh_sfm=args.fresh_sfm)
         if args.f1_minutes > 0 and scene == f1_scene:
             for kind, masks in (("true", result["true_masks"]), ("automatic", result["masks"])):

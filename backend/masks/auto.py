@@ -31,10 +31,11 @@ class MaskOptions:
     min_frames: int = 3
     # the ground's photo-consistency (.ground), with a ground plane: pixels differing less than
     # ``ground_below`` (0..255) from the neighbouring frames warped through the plane are sure
-    # background; those (within the probable foreground) differing more than ``object_above``
-    # are sure foreground (None: not used)
+    # background; undecided ones (probable either way) differing more than ``object_above``
+    # are sure foreground (None: not used). Sure background from the ground cue lost more of the
+    # object than it removed of the ground; the object cue at 12 recovers the shadowed parts
     ground_below: float | None = None
-    object_above: float | None = None
+    object_above: float | None = 12.0
     ground_neighbours: int = 2  # frames on each side, in capture order, warped onto a frame
 
 
