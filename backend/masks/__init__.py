@@ -13,7 +13,9 @@ Pipeline, classical by default (no learned model):
 2. **Per-frame segmentation** (:mod:`.segment`): OpenCV GrabCut seeded by the projected region
    (its points' convex hull, widened, as probable foreground), the frame border and the
    observed points off the object as background, the observed object points as foreground.
-   With ``--mask-model FILE.onnx`` a salient-object network read by ``cv2.dnn`` segments
+   With a ground plane, the ground's photo-consistency (:mod:`.ground`: the neighbouring frames
+   warped onto the frame through the plane) marks what stands off the ground as sure foreground,
+   which colour alone cannot (a shadowed leg the colour of the ground under it). With ``--mask-model FILE.onnx`` a salient-object network read by ``cv2.dnn`` segments
    instead.
 3. **Cross-frame consistency** (:mod:`.consistency`): the masks' visual hull on a voxel grid,
    reprojected into every frame and compared with its mask (IoU). Frames that disagree, or

@@ -11,6 +11,7 @@ import numpy as np
 from ..errors import InputError, require
 from .cameras import View, views_of
 from .consistency import Votes, iou, project_hull
+from .ground import ground_difference
 from .region import NO_OBJECT_FIX, Region, object_region
 from .segment import OnnxSegmenter, SeedOptions, grabcut, hull_polygon, mask_seeds, region_seeds
 
@@ -28,6 +29,14 @@ class MaskOptions:
     rounds: int = 2  # GrabCut rounds: the region's seeds, then the strict visual hull's projection
     strict_tolerance: int = 0  # views that may disagree with a voxel of the hull that seeds a round
     min_frames: int = 3
+    # the ground's photo-consistency (.ground), with a ground plane: pixels differing less than
+    # ``ground_below`` (0..255) from the neighbouring frames warped through the plane are sure
+    # background; undecided ones (probable either way) differing more than ``object_above``
+    # are sure foreground (None: not used). Sure background from the ground cue lost more of the
+    # object than it removed of the ground; the object cue at 12 recovers the shadowed parts
+    ground_below: float | None = None
+    object_above: float | None = 12.0
+    ground_neighbours: int = 2  # frames on each side, in capture order, warped onto a frame
 
 
 @dataclass
@@ -91,6 +100,7 @@ def make_masks(frames: dict[str, np.ndarray], sfm, options: MaskOptions | None =
     points = np.asarray(sfm.points, np.float64).reshape(-1, 3)
     obj = points[region.inside]
     masks, dropped, fg_of, bg_of = {}, {}, {}, {}
+    ground = _ground_differences(views, frames, obj, region, options)
     for v in views:
         uv, _ = v.project(obj)
         hull = hull_polygon(uv)
@@ -109,6 +119,7 @@ def make_masks(frames: dict[str, np.ndarray], sfm, options: MaskOptions | None =
             masks[v.name] = segmenter(frames[v.name])
         else:
             labels = region_seeds((v.height, v.width), hull, fg_of[v.name], bg_of[v.name], options.seeds)
+            _ground_seeds(labels, ground.get(v.name), options)
             masks[v.name] = grabcut(frames[v.name], labels, options.seeds.iterations, fg_of[v.name],
                                         options.seeds.smooth)
     rounds = 1 if segmenter is not None else options.rounds
@@ -133,6 +144,7 @@ def make_masks(frames: dict[str, np.ndarray], sfm, options: MaskOptions | None =
                     continue
                 voxel_px = strict.voxel * v.fx / max(float(np.linalg.norm(v.centre - obj.mean(0))), 1e-9)
                 labels = mask_seeds((v.height, v.width), bound, max(3, int(round(2 * voxel_px))), masks[v.name])
+                _ground_seeds(labels, ground.get(v.name), options)
                 masks[v.name] = grabcut(frames[v.name], labels, options.seeds.iterations, fg_of[v.name],
                                         options.seeds.smooth)
     for n in list(masks):
@@ -157,3 +169,39 @@ def _votes(views: list[View], masks: dict[str, np.ndarray], obj: np.ndarray, opt
     lo, hi = obj.min(0), obj.max(0)
     grow = 0.5 * float(np.max(hi - lo))
     return Votes(views, masks, lo - grow, hi + grow, options.grid)
+
+
+def _ground_differences(views: list[View], frames: dict[str, np.ndarray], obj: np.ndarray, region: Region,
+                        options: MaskOptions) -> dict[str, np.ndarray]:
+    """Per frame, the ground's photo-consistency difference (.ground); none without a ground
+    plane or when neither threshold is set."""
+    if region.ground is None or (options.ground_below is None and options.object_above is None):
+        return {}
+    centre, size = obj.mean(0), 2.0 * float(np.ptp(obj, 0).max())
+    out, k = {}, options.ground_neighbours
+    for i, v in enumerate(views):
+        others = [views[j] for j in range(i - k, i + k + 1) if j != i and 0 <= j < len(views)]
+        out[v.name] = ground_difference(frames[v.name], v, [(frames[o.name], o) for o in others], region.ground,
+                                        centre, size)
+    return out
+
+
+def _ground_seeds(labels: np.ndarray, difference: np.ndarray | None, options: MaskOptions) -> None:
+    """Sure labels from the ground difference, in place (see MaskOptions). Each cue is opened
+    (eroded, then dilated, by a 7-pixel disk) first: specks of the object that happen to match
+    the ground (or of the ground that an occlusion makes differ) would punch holes in a mask,
+    and a mask with holes carves every other frame's hull."""
+    import cv2  # bpy must be imported before cv2 in one process
+
+    if difference is None:
+        return
+    kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (7, 7))
+
+    def opened(cue):
+        return cv2.morphologyEx(cue.astype(np.uint8), cv2.MORPH_OPEN, kernel) > 0
+
+    if options.object_above is not None:
+        cue = opened((difference > options.object_above) & np.isfinite(difference))
+        labels[cue & ((labels == cv2.GC_PR_FGD) | (labels == cv2.GC_PR_BGD))] = cv2.GC_FGD
+    if options.ground_below is not None:
+        labels[opened(difference < options.ground_below) & (labels != cv2.GC_FGD)] = cv2.GC_BGD
