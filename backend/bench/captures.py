@@ -270,7 +270,7 @@ def _write_pieces_record(results: list[dict], args) -> None:
                "held-out SSIM": round(r["held_out_ssim"], 3) if r["held_out_ssim"] is not None else None,
                "fitted-view dB": round(r["fitted_psnr"], 2) if r["fitted_psnr"] is not None else None,
                "reconstruct min": r["minutes"]["reconstruct"]} for r in results if "error" not in r],
-        plots=[r["sheet"] for r in results if "error" not in r])
+        show=["run", "lighting", "held-out dB", "held-out SSIM", "fitted-view dB"])  # sheets: OUT/<name>/<piece>/
 
 
 def _named_lighting(extra: str) -> str | None:

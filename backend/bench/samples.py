@@ -127,5 +127,6 @@ def run(args) -> int:
         context=(f"gradient directions of an HDR-lit step ({a.mesh}, {bench.truth_faces} faces, {a.resolution} px, "
                  "2 views) against a high-sample reference; P primal, C interior, S silhouette samples per pixel; "
                  "SNR = c^2/(1-c^2), per second of a step"),
-        rows=[{"scene": f"depth {a.max_depth}, offset {a.offset}", **r} for r in rows], variant=chosen)
+        rows=[{"scene": f"depth {a.max_depth}, offset {a.offset}", **r} for r in rows],
+        show=["scene", "P,C,S", "step s", "SNR per s"], variant=chosen)
     return 0
