@@ -66,6 +66,7 @@ JOBS = (
     Job("geometry", "geometry", 0.4, (("bench", "geometry", "--out", "{out}"),)),
     Job("effects", "effects", 0.15, (("bench", "effects", "--out", "{out}"),)),
     Job("steps", "steps", 0.05, (("bench", "steps"),)),
+    Job("samples", "samples", 0.05, (("bench", "samples", "--offset", "0.02"), ("bench", "samples", "--offset", "0.005"))),
     Job("budget", "budget", 0.1, (("bench", "budget", "--minutes", "2,1", "--out", "{out}"),)),
     Job("hdr", "hdr", 0.05, (
         ("bench", "hdr", "--steps", "6", "--configs", "sppi=0;sppi=12,guiding=none", "--out", "{out}/arma"),

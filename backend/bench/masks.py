@@ -153,6 +153,7 @@ def write_capture(out: Path, sfm, frames: dict[str, np.ndarray], masks: dict[str
     map at rotation 0, strength 1: the same placeholder for every capture compared)."""
     from PIL import Image
 
+    # only the F1 comparison writes captures: the mask-only bench loads none of this
     from ..capture.convert import convert
     from ..capture.format import save_capture
     from ..capture.images import write_mask
@@ -177,6 +178,7 @@ def write_capture(out: Path, sfm, frames: dict[str, np.ndarray], masks: dict[str
 def reconstruct_f1(capture: Path, run_dir: Path, orbit: Path, minutes: float, size: int) -> dict:
     """``reconstruct`` of ``capture`` (constant material, the capture's map, cameras kept) and
     its F1@0.01 against ``orbit/truth.ply`` after the camera-centre similarity and ICP."""
+    # only the F1 comparison scores meshes: the mask-only bench loads none of this
     from ..geometry.mesh import load_mesh
     from ..metrics.geometry import align_by_icp, align_similarity, geometry_metrics
 

@@ -266,7 +266,7 @@ class SummedFit(LightingFit):
     rig map's, handed to the renderer's ``SummedMaps`` as exp(latent) before every render; the
     penalty is each map's smoothness prior."""
 
-    NAME = "environment"
+    NAME = "summed_environment"
 
     def __init__(self, model: SummedEnvironment):
         import drjit as dr

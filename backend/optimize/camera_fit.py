@@ -1,6 +1,7 @@
 """Camera refinement (``--refine-cameras``): each frame's pose (6-DoF) and the shared intrinsics
 (focal length, principal point) refined by the renders the fit already makes, with a quadratic
-prior towards the cameras the run started from (``CameraFit``).
+prior towards the cameras the run started from (``CameraFit``). Longer than 400 lines: the
+sweeps, the damped pose steps' driver and the per-frame revert share one fit's state.
 
 Parameters. Frame i's camera is C_i' = C_i Delta_i (camera-to-world, Blender camera axes), with
 Delta_i = [R_delta | t] a small rigid motion in the camera's own frame (``camera_model.delta``):

@@ -18,6 +18,7 @@ from ..capture.images import read_rgba
 from ..capture.model import Camera, Environment, PointLight
 from ..capture.undistort import needs_resampling
 from ..geometry.mesh import Mesh
+from ..lighting.summed_map import SummedMaps
 from ..geometry.raycast import mitsuba_mesh  # noqa: F401  (re-exported: render.scene.mitsuba_mesh)
 from . import bsdf as _bsdf  # noqa: F401  (registers sft_surface)
 from . import projective as _projective  # noqa: F401  (registers sft_direct_projective, sft_prb_projective)
@@ -152,7 +153,6 @@ class SceneRenderer:
         # a summed world + camera map: the envmap is set to their sum before each render
         self.summed = None
         if environment is not None and environment.frame == "world+camera":
-            from ..lighting.summed_map import SummedMaps
             self.summed = SummedMaps(environment, cameras, env_pixels)
         scene.update(extra_shapes or {})
         self.scene = mi.load_dict(scene)

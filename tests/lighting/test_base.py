@@ -48,8 +48,8 @@ def having(interface: type) -> list[type]:
 
 def test_every_fitted_lighting_class_implements_the_interface():
     fits, models = having(LightingFit), having(LightingModel)
-    assert {c.__name__ for c in fits} == {"EnvironmentFit", "FlashFit", "LightFactor"}
-    assert {c.__name__ for c in models} == {"EstimatedEnvironment", "Flash"}
+    assert {c.__name__ for c in fits} == {"EnvironmentFit", "FlashFit", "LightFactor", "SummedFit"}
+    assert {c.__name__ for c in models} == {"EstimatedEnvironment", "Flash", "SummedEnvironment"}
     for c in fits:
         assert issubclass(c, LightingFit) and not inspect.isabstract(c), c
     for c in models:
