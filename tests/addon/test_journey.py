@@ -184,9 +184,9 @@ def _glb_textures(path: Path) -> dict[str, np.ndarray]:
 def test_the_headless_script_runs_the_journey_without_an_hdr_map(orbit, tmp_path):
     """``scripts/reconstruct.py VIDEO --masks M --out scene.blend --gltf out.glb`` (plain Python
     with the bpy module here; ``blender --background --python`` alike) with no HDR map: the
-    panel's Lighting default, Estimate, fits an environment with the material, the relit
-    preview renders under that map (RUN/environment.exr), and the textures the run fitted
-    reach result.glb. The HDR-lit journey is the panel's, above."""
+    panel's Lighting default, Auto, fits the lighting a held-out probe picks with the material,
+    the relit preview renders under it (RUN/environment.exr, or the fitted flash), and the
+    textures the run fitted reach result.glb. The HDR-lit journey is the panel's, above."""
     import os
 
     from backend.capture.load import load_capture
@@ -206,13 +206,19 @@ def test_the_headless_script_runs_the_journey_without_an_hdr_map(orbit, tmp_path
     (run,) = list((solved / "runs").iterdir())
     argv = json.loads((run / "command.json").read_text())["argv"]
     assert argv[argv.index("--material") + 1] == "staged" and "--time-budget" in argv
-    assert "--env" not in argv and argv[argv.index("--lighting") + 1] == "estimate"
+    assert "--env" not in argv and argv[argv.index("--lighting") + 1] == "auto"
     report = json.loads((run / "report.json").read_text())
-    assert report["lighting"]["model"] == "environment map (estimated)", report["lighting"]
-    assert (run / report["lighting"].get("file", "environment.exr")).is_file()
+    winner = report["lighting_choice"]["winner"]  # the probe's pick among the fitted lightings
+    assert winner in ("estimate", "rig", "world+rig", "flash"), report["lighting_choice"]
+    if winner == "flash":
+        assert "under the run's fitted flash" in printed, printed[-3000:]
+    else:
+        assert report["lighting"]["model"] == "environment map (estimated)", report["lighting"]
+        assert (run / report["lighting"].get("file", "environment.exr")).is_file()
+        # the preview rendered under the run's estimated map
+        assert "under the run's estimated environment" in printed, printed[-3000:]
 
-    # the preview rendered under the run's estimated map, and the object is lit in it
-    assert "under the run's estimated environment" in printed, printed[-3000:]
+    # the object is lit in the preview
     frame = load_capture(solved).frames[0]
     rendered = _object_pixels(out.with_name(out.stem + ".preview_render.png"), frame.mask)
     captured = _object_pixels(frame.image, frame.mask)
