@@ -18,8 +18,8 @@ from ..capture.images import read_rgba
 from ..capture.model import Camera, Environment, PointLight
 from ..capture.undistort import needs_resampling
 from ..geometry.mesh import Mesh
-from ..lighting.summed_map import SummedMaps
 from ..geometry.raycast import mitsuba_mesh  # noqa: F401  (re-exported: render.scene.mitsuba_mesh)
+from ..lighting.summed_map import SummedMaps
 from . import bsdf as _bsdf  # noqa: F401  (registers sft_surface)
 from . import projective as _projective  # noqa: F401  (registers sft_direct_projective, sft_prb_projective)
 
