@@ -8,7 +8,7 @@ from .scene_cameras import show_labels
 from .io.preset_file import PRESETS
 
 QUALITY = (("auto", "Fit Budget", "The most accurate preset whose calibrated time fits the time budget, or the "
-            "next one, cut at the budget, when the budget is three times that preset's time (Balanced when the "
+            "next one, cut at the budget, when the budget is twice that preset's time (Balanced when the "
             "budget is 0)"), *PRESETS)
 MATERIALS = (
     ("FULL", "Full", "Spatially varying diffuse albedo, specular and roughness as mesh colors, fitted in stages "

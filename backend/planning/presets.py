@@ -18,8 +18,10 @@ PRESETS = {
     "final": {"min_levels": 7},
 }
 DEFAULT = "balanced"
-# a time budget at least this many times the best fitting preset's time runs the next one
-FILL_FACTOR = 3.0
+# a time budget at least this many times the best fitting preset's time runs the next one, cut
+# at the budget: Draft stops when its levels end, however much of the budget is left
+# (docs/notes/2026-12-02-budget-fill.md)
+FILL_FACTOR = 2.0
 CALIBRATION_FILE = Path(__file__).resolve().parents[1] / "presets.json"
 
 

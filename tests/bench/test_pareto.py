@@ -94,7 +94,7 @@ def test_preset_for_budget_picks_the_most_accurate_preset_that_fits(tmp_path):
     assert preset_for_budget(9.5, path) == "balanced"
     assert preset_for_budget(60, path) == "final"
     # a budget the best fit would mostly leave unused runs the next preset, cut at the budget
-    assert preset_for_budget(5.9, path) == "draft" and preset_for_budget(6, path) == "balanced"
+    assert preset_for_budget(3.9, path) == "draft" and preset_for_budget(4, path) == "balanced"
     assert preset_for_budget(27, path) == "final"
     # a kind without its own calibration reads the point-lit one; one with its own reads it
     assert preset_for_budget(9.5, path, kind="environment") == "balanced"
