@@ -16,6 +16,14 @@ from backend.capture.images import write_image
 from .test_panels import RecordingLayout
 
 
+def _lighting_args_and_labels(reconstruct, sft, context, lighting: str) -> tuple[list[str], list[str]]:
+    """Reconstruct's method arguments and the Reconstruct panel's labels with Lighting on ``lighting``."""
+    sft.lighting = lighting
+    log = []
+    bpy.types.SFT_PT_reconstruct.draw(types.SimpleNamespace(layout=RecordingLayout(log)), context)
+    return reconstruct.method_args(sft), [entry[1] for entry in log if entry[0] == "label"]
+
+
 def test_camera_flash_puts_lighting_flash_on_the_command_line(context, extension, tmp_path):
     reconstruct = import_module(f"{extension.__name__}.addon.operators.reconstruct")
     sft = context.scene.sft
@@ -43,12 +51,9 @@ def test_lighting_on_the_camera_puts_lighting_rig_on_the_command_line_and_leaves
     sft = context.scene.sft
     items = {item.identifier: item.name for item in sft.bl_rna.properties["lighting"].enum_items}
     assert items["RIG"] == "Estimate, on the camera"
-    sft.lighting = "RIG"
-    argv = reconstruct.method_args(sft)
+    argv, labels = _lighting_args_and_labels(reconstruct, sft, context, "RIG")
     assert argv[argv.index("--lighting") + 1] == "rig" and "--env" not in argv
-    log = []
-    bpy.types.SFT_PT_reconstruct.draw(types.SimpleNamespace(layout=RecordingLayout(log)), context)
-    assert any(entry[1].startswith("A map fixed to the camera") for entry in log if entry[0] == "label")
+    assert any(label.startswith("A map fixed to the camera") for label in labels)
     run = tmp_path / "run"
     run.mkdir()
     (run / "environment.exr").write_bytes(b"not read")
@@ -68,17 +73,12 @@ def test_auto_is_the_default_and_world_plus_camera_puts_lighting_world_rig_on_th
     items = {item.identifier: item.name for item in sft.bl_rna.properties["lighting"].enum_items}
     assert items["AUTO"] == "Auto" and items["WORLD_RIG"] == "Estimate, world + camera"
     assert sft.bl_rna.properties["lighting"].default == "AUTO" and sft.lighting == "AUTO"
-    argv = reconstruct.method_args(sft)
+    argv, labels = _lighting_args_and_labels(reconstruct, sft, context, "AUTO")
     assert argv[argv.index("--lighting") + 1] == "auto" and "--env" not in argv
-    log = []
-    bpy.types.SFT_PT_reconstruct.draw(types.SimpleNamespace(layout=RecordingLayout(log)), context)
-    assert any(entry[1].startswith("Chosen by a short probe") for entry in log if entry[0] == "label")
-    sft.lighting = "WORLD_RIG"
-    argv = reconstruct.method_args(sft)
+    assert any(label.startswith("Chosen by a short probe") for label in labels)
+    argv, labels = _lighting_args_and_labels(reconstruct, sft, context, "WORLD_RIG")
     assert argv[argv.index("--lighting") + 1] == "world+rig" and "--env" not in argv
-    log = []
-    bpy.types.SFT_PT_reconstruct.draw(types.SimpleNamespace(layout=RecordingLayout(log)), context)
-    assert any(entry[1].startswith("A world-fixed map plus a camera-fixed one") for entry in log if entry[0] == "label")
+    assert any(label.startswith("A world-fixed map plus a camera-fixed one") for label in labels)
     run = tmp_path / "run"
     run.mkdir()
     write_image(run / "environment.exr", np.full((8, 16, 3), 0.5, np.float32))
