@@ -38,6 +38,9 @@ def parse_args(argv=None):
     p.add_argument("--truth", type=Path, help="render_orbit.py output folder, to score the result")
     p.add_argument("--python", help="backend interpreter (default: press Install Backend)")
     p.add_argument("--budget", type=float, help="Time Budget in minutes (default: the panel's)")
+    p.add_argument("--record", metavar="LABEL",
+                   help="also write the row LABEL of the 'journey' benchmark record (bench/records/journey.json; "
+                        "rows of other labels are kept)")
     return p.parse_args(argv)
 
 
@@ -113,8 +116,39 @@ def main(argv=None) -> int:
         g = figures["score"]["geometry"]
         print(f"[journey] F1@0.01 {g['f1@0.01']:.1f}, Chamfer-L1 {g['chamfer_l1']:.5f}", flush=True)
     (out / "journey.json").write_text(json.dumps(figures, indent=1))
+    if args.record:
+        write_journey_record(args, figures, argv)
     print(json.dumps({k: figures[k] for k in ("steps_s", "total_min", "user_min")}), flush=True)
     return 0
+
+
+def write_journey_record(args, figures: dict, argv) -> None:
+    """One row of the ``journey`` record: each step's minutes, the run's lighting, its figures."""
+    sys.path.insert(0, str(ROOT))
+    from backend.bench._records import folder, write_record
+
+    steps = figures["steps_s"]
+    report = json.loads((Path(figures["run"]) / "report.json").read_text())
+    row = {"try": args.record, "frames": figures["frames"], "lighting": figures["settings"]["lighting"],
+           "time budget (min)": figures["settings"]["time_budget"],
+           **{f"{k} (min)": round(v / 60, 2) for k, v in steps.items() if k not in ("install zip",)},
+           "user steps (min)": figures["user_min"]}
+    model = (report.get("lighting") or {}).get("model")
+    if model:
+        row["lighting model"] = model
+    score = figures.get("score")
+    if score:
+        row["F1@0.01"] = round(score["geometry"]["f1@0.01"], 1)
+        row["Chamfer-L1"] = round(score["geometry"]["chamfer_l1"], 5)
+        row["camera centres max (%)"] = round(score["camera_centre_error_pct"]["max"], 2)
+    last = folder() / "journey.json"
+    if last.is_file() and any("try" not in r for r in json.loads(last.read_text())["figures"]["rows"]):
+        last.unlink()  # a table of another layout: its rows cannot merge with these
+    args_line = " ".join(str(a) for a in (sys.argv[1:] if argv is None else argv))
+    write_record("journey", title="The artist's path",
+                 context="orbit videos through the Blender panel's defaults on a fresh install: "
+                         "built zip, Install Backend, the panel's buttons in order, each step timed",
+                 rows=[row], merge_on="try", command=f"python scripts/journey.py {args_line}")
 
 
 if __name__ == "__main__":
