@@ -125,6 +125,7 @@ def main(argv=None) -> int:
 def write_journey_record(args, figures: dict, argv) -> None:
     """One row of the ``journey`` record: each step's minutes, the run's lighting, its figures."""
     sys.path.insert(0, str(ROOT))
+    from backend.bench._machine import code_version
     from backend.bench._records import folder, write_record
 
     steps = figures["steps_s"]
@@ -132,7 +133,7 @@ def write_journey_record(args, figures: dict, argv) -> None:
     row = {"try": args.record, "frames": figures["frames"], "lighting": figures["settings"]["lighting"],
            "time budget (min)": figures["settings"]["time_budget"],
            **{f"{k} (min)": round(v / 60, 2) for k, v in steps.items() if k not in ("install zip",)},
-           "user steps (min)": figures["user_min"]}
+           "user steps (min)": figures["user_min"], "commit": code_version()}
     model = (report.get("lighting") or {}).get("model")
     if model:
         row["lighting model"] = model
