@@ -2,9 +2,9 @@
 
 Real captures mix light fixed to the room with light that moves with the camera (a flash, a
 lamp on the rig, the operator), and neither the capture's kind nor its name says which
-dominates. So each model the capture allows (``candidates``) is fitted for a few steps on the
-run's initial mesh, with a constant diffuse material, on every frame but ``HELD_OUT`` spread
-ones, and scored on those:
+dominates. So each model the capture allows (``candidates``) is fitted for a few steps on a
+mesh of the run (its first level's: see below), with a constant diffuse material, on every
+frame but ``HELD_OUT`` spread ones, and scored on those:
 
 - ``estimate``: an environment map fixed to the world (backend.lighting.estimated_map);
 - ``rig``: the same map fixed to each view's camera (lamps on the camera rig);
@@ -34,15 +34,17 @@ rounds (``runoff``). With a budget, the run-off takes ``RUNOFF_SHARE`` of the pr
 
 When the choice is made (``Deferred``): a capture that records no light is probed on the mesh
 of the run's first level, not on its initial carve. The carve is too poor a surface to rank
-lightings on: its shading errors swamp the differences between the models (on DTU scan 65
-every candidate scored about 14 dB and the order flipped between two carves, while full runs
-differed by 3.5 dB). So the first level runs under ``PROVISIONAL`` lighting, the summed maps:
-they can light the frames as either map alone does (and a flash nearly as the rig map does),
+lightings on: its shading errors swamp the differences between the models
+(docs/notes/2026-12-02-lighting-after-level.md). So the first level runs under the
+``PROVISIONAL`` lighting, the summed maps: they can light the frames as either map alone does (and a flash nearly as the rig map does),
 so the first level's geometry steps are bent least by a kind of light the model lacks. The
 probe then fits every candidate from its start on that level's mesh, the run continues under
 the winner, its fitted lighting taken over from the probe, and one material cycle re-fits the
-material under it. The mesh was shaped under the provisional lighting, which may favour it a
-little; the summed maps' handicap stands against that. A capture that records its lights
+material under it. A winner whose held-out loss is within ``KEEP_DB`` of the provisional's
+(without the handicap) does not replace it: the summed maps hold either single map's light,
+the run is already under them, and the probe's constant-material fits do not tell models
+that close apart (the run keeps the provisional lighting, ``kept``). The mesh was shaped
+under the provisional lighting, which may favour it a little. A capture that records its lights
 (``captured`` among the candidates) or has too few frames to probe is decided before the run,
 on the initial mesh, as before (its own lights are exact: no surface is needed to rank them)."""
 
@@ -82,6 +84,8 @@ RUNOFF_SHARE = 0.5  # of the probe's time share, kept for the run-off
 SUMMED_HANDICAP_DB = 0.5
 SEED = 9_000_011
 PROVISIONAL = "world+rig"  # the lighting of the first level while the choice waits for its mesh
+# a probe winner this close to the provisional lighting (held-out dB, no handicap) does not replace it
+KEEP_DB = TIE_DB
 NAMES = {"estimate": "world map", "rig": "rig map", "world+rig": "world + rig maps", "flash": "flash at the camera",
          "captured": "captured lights"}
 
@@ -273,9 +277,33 @@ class Deferred:
         where = f"level {level} mesh ({self.provisional} provisional)"
         choice = choose(capture, self.config, emit, self.budget_s, modes=self.modes, mesh=mesh, probed_on=where,
                         fitted=fitted, announce=False)
-        choice["provisional"] = self.provisional
-        choice["level"] = level
-        return choice, fitted.get(choice["winner"])
+        choice.update(provisional=self.provisional, level=level)
+        self.settle(choice)
+        return choice, None if choice["kept"] else fitted.get(choice["winner"])
+
+    def settle(self, choice: dict) -> dict:
+        """``choice`` with the provisional lighting as its winner when the probe's winner is
+        within ``KEEP_DB`` of it (``kept`` true; ``runner_up`` the probe's winner, ``margin_db``
+        minus the gap), else as the probe left it (``kept`` false)."""
+        gap = self.gap(choice)
+        choice["kept"] = gap is not None and gap < KEEP_DB
+        if choice["kept"]:
+            best = choice["winner"]
+            choice.update(winner=self.provisional, runner_up=best, margin_db=round(-gap, 3),
+                          line=f"lighting: {NAMES[self.provisional]} kept, {gap:.1f} dB behind the {NAMES[best]} "
+                               f"(under {KEEP_DB:g} dB), on the {choice['probed_on']}")
+        return choice
+
+    def gap(self, choice: dict) -> float | None:
+        """10 log10(provisional's held-out loss / the winner's), dB, without the handicap, from the
+        run-off when both were in it, else from the first round; None when the provisional won."""
+        if choice["winner"] == self.provisional:
+            return None
+        for round_ in (choice.get("runoff") or [], choice["candidates"]):
+            losses = {r["model"]: r["loss"] for r in round_}
+            if self.provisional in losses and choice["winner"] in losses and losses[choice["winner"]] > 0:
+                return 10 * math.log10(losses[self.provisional] / losses[choice["winner"]])
+        return None
 
     @staticmethod
     def announce(emit, choice: dict) -> None:
