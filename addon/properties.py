@@ -28,7 +28,7 @@ EFFECTS = (
     ("ALL", "All", "Simulate every effect: slower, for scenes where the measurement may miss one"),
 )
 LIGHTING = (
-    ("AUTO", "Auto", "Choose the lighting by a short probe before the run: a map fixed to the world, one fixed to "
+    ("AUTO", "Auto", "Choose the lighting by a short probe after the first level: a map fixed to the world, one fixed to "
      "the camera, the two summed, or a flash at the camera, whichever renders held-out frames best (the panel "
      "shows the winner and its margin). The default while no map or lights are imported"),
     ("ESTIMATE", "Estimate", "Fit an environment map with the material (no HDR capture needed); the World shows "

@@ -246,12 +246,17 @@ MODEL_NAMES = {"estimate": "world map", "rig": "rig map", "world+rig": "world + 
 
 def lighting_choice_summary(event: dict) -> str:
     """One line from a ``lighting_choice`` event (``--lighting auto``), e.g. 'lighting: rig map,
-    by 1.2 dB' (the held-out margin over the runner-up), or 'lighting: world map (not probed)'."""
+    by 1.2 dB' (the held-out margin over the runner-up), 'lighting: world + rig maps kept, 0.2 dB
+    behind the world map' (a near tie left the run's provisional lighting), or 'lighting: world
+    map (not probed)'."""
     winner = str(event.get("winner") or "")
     name = MODEL_NAMES.get(winner, winner)
     margin = event.get("margin_db")
     if margin is None:
         return f"lighting: {name} (not probed)"
+    if event.get("kept"):  # a near tie after the first level: the run's provisional lighting stays
+        best = str(event.get("runner_up") or "")
+        return f"lighting: {name} kept, {-float(margin):.1f} dB behind the {MODEL_NAMES.get(best, best)}"
     return f"lighting: {name}, by {float(margin):.1f} dB" + (" (run-off)" if event.get("runoff") else "")
 
 

@@ -147,7 +147,7 @@ class SFT_PT_reconstruct(_Panel, bpy.types.Panel):
         col.prop(sft, "effects")
         col.prop(sft, "lighting")
         if sft.lighting == "AUTO":
-            col.label(text="Chosen by a short probe before the run (world, camera, both summed, flash)",
+            col.label(text="Chosen by a short probe after the first level (world, camera, both summed, flash)",
                       icon="LIGHT_SUN")
         elif sft.lighting == "ESTIMATE":
             col.label(text="Lighting estimated with the material (mean albedo 0.5 sets the scale)", icon="WORLD_DATA")

@@ -5,6 +5,7 @@ the per-frame camera response and the choice of light-transport effects (the rul
 from __future__ import annotations
 
 import time
+from pathlib import Path
 
 import numpy as np
 
@@ -13,7 +14,7 @@ from ..errors import InputError
 from ..lighting.convention import AlbedoScale, check_scale, rescale_albedo, scale_report
 from ..lighting.estimated_map import FILENAME as ESTIMATED_MAP
 from ..lighting.estimated_map import EstimatedEnvironment
-from ..lighting.summed_map import FRAME as SUMMED_FRAME, SummedEnvironment
+from ..lighting.summed_map import FRAME as SUMMED_FRAME, RIG_FILENAME, SummedEnvironment
 from ..lighting.flash import Flash
 from ..lighting.modes import ESTIMATED, MAP_FRAME
 from ..material import factory
@@ -117,6 +118,34 @@ class Appearance:
             self.emit("warning", message=f"--lighting {self.config.lighting} fits the {what} in the material "
                                          f"stages of --material staged: this run keeps the initial {what}")
         self._lighting_event("initial")
+
+    def adopt_lighting(self, lighting, folder) -> None:
+        """Continue under ``lighting``, the fitted model of ``config.lighting`` (already set to
+        it) that ``--lighting auto``'s probe fitted on the run's mesh (a flash or an estimated
+        map: a capture with its own lights is decided before the run). Its files are named in ``folder`` (the next snapshot
+        writes them) and the provisional model's files that it does not write are removed; a
+        flash lights this capture's frames, a map replaces the capture's environment."""
+        folder = Path(folder)
+        if isinstance(self.lighting, Flash):
+            for frame in self.capture.frames:
+                frame.lights[:] = []  # in place: the views hold the lists
+        self.capture.environment = None
+        if isinstance(lighting, Flash):
+            lighting.capture = self.capture
+            lighting.latent = lighting.latent  # placed in this capture's frames
+        elif isinstance(lighting, SummedEnvironment):
+            lighting.world.path, lighting.rig.path = folder / ESTIMATED_MAP, folder / RIG_FILENAME
+        elif isinstance(lighting, EstimatedEnvironment):
+            lighting.path = folder / ESTIMATED_MAP
+        keep = {ESTIMATED_MAP} if isinstance(lighting, EstimatedEnvironment) else set()
+        keep |= {ESTIMATED_MAP, RIG_FILENAME} if isinstance(lighting, SummedEnvironment) else set()
+        for name in {ESTIMATED_MAP, RIG_FILENAME} - keep:
+            (folder / name).unlink(missing_ok=True)
+        self.lighting = lighting
+        if self.albedo_scale.mode == "known":
+            lighting.albedo_scale = self.albedo_scale
+        self.capture.environment = lighting.environment()
+        self._lighting_event("chosen")
 
     def _lighting_event(self, when: str, stage: str | None = None) -> None:
         self.emit("lighting", when=when, stage=stage, **self.lighting.event())

@@ -47,7 +47,7 @@ COST_PROBE_AFTER = 1
 def reconstruct(capture: Capture, out: RunFolder, config: ReconstructConfig, events, *, resume: bool = False,
                 material=None, objective_factory=Objective, planner=None, tracking=None,
                 remaining=None, started: float | None = None, level_limit: int | None = None,
-                lighting_choice: dict | None = None, initial: tuple | None = None) -> Result:
+                lighting_choice: dict | None = None, initial: tuple | None = None, lighting_probe=None) -> Result:
     """Reconstruct ``capture`` into the run folder ``out`` (docs/protocol.md), emitting
     ``events`` (an Emitter: ``events(name, **fields)``). Args:
         resume: continue from the folder's saved state.
@@ -71,6 +71,14 @@ def reconstruct(capture: Capture, out: RunFolder, config: ReconstructConfig, eve
             report.json ``lighting_choice``.
         initial: a new run's initial mesh and its kind, as ``geometry.init.initial_mesh`` makes
             them from the frames the run fits (the lighting probe made it); None: made here.
+        lighting_probe: ``--lighting auto``'s choice after the first level
+            (planning.lighting_choice.Deferred: ``choose(capture, mesh, level, emit)`` ->
+            (choice, the winner's fitted lighting), ``announce(emit, choice)``); the run starts
+            under ``config.lighting`` (its provisional lighting), and when the first level it
+            runs has ended (with its material cycle and camera refinement) the probe runs on
+            that level's mesh; a different winner replaces the lighting (``config.lighting`` and
+            the fitted model, ``Appearance.adopt_lighting``) and one material cycle re-fits the
+            material under it, before the level's snapshot; the event follows the snapshot.
     Raises InputError on bad input; cancellation returns exit code 130."""
     if tracking is None:
         if config.track_accuracy:
@@ -78,7 +86,7 @@ def reconstruct(capture: Capture, out: RunFolder, config: ReconstructConfig, eve
         tracking = lambda capture, config: (capture, Untracked())  # noqa: E731
     run = Reconstruction(capture, out, config, events, tracking, material=material, resume=resume,
                          objective_factory=objective_factory, started=started, level_limit=level_limit)
-    run.lighting_choice, run.initial = lighting_choice, initial
+    run.lighting_choice, run.initial, run.lighting_probe = lighting_choice, initial, lighting_probe
     return Result(run.run(planner, remaining), out.path)
 
 
@@ -144,6 +152,7 @@ class Reconstruction:
         self.stiffness = None
         self.cameras = CameraRefinement.start(capture, config, self.viewset)  # --refine-cameras
         self.lighting_choice = self.initial = None  # --lighting auto's probe and its (mesh, kind): ``reconstruct``
+        self.lighting_probe = None  # --lighting auto's choice after the first level (``reconstruct``)
 
     def run(self, planner=None, remaining=None) -> int:
         """Run to the end (``planner``, ``remaining``: as ``reconstruct`` takes them); returns
@@ -237,7 +246,11 @@ class Reconstruction:
                 self.cameras.after_level(s, self.material, views, self._fit().settings,  # --refine-cameras
                                          lit_environment(self.capture, self.material), self.budget, self.emit,
                                          self.folder.check_stop)
+                probe, self.lighting_probe = self.lighting_probe, None
+                choice = None if probe is None else self._choose_lighting(probe, record, views)
                 self.snapshot(loss=record.loss)
+                if choice is not None:
+                    probe.announce(self.emit, choice)
                 self._plan()
                 s.levels_ended = levels_end(self.config, s, self.budget, record)
                 if s.levels_ended:
@@ -245,6 +258,27 @@ class Reconstruction:
             transition(self._fit(), self.appearance)
             s.level += 1
             s.phase = "level"
+
+    def _choose_lighting(self, probe, record: LevelRecord, views) -> dict:
+        """``--lighting auto`` after the first level: the probe on its mesh (``reconstruct``'s
+        ``lighting_probe``); under a different winner, its fitted lighting and one material
+        cycle on ``views``. Returns report.json ``lighting_choice``."""
+        s, start = self.state, time.perf_counter()
+        provisional = self.config.lighting
+        choice, lighting = probe.choose(self.capture, s.mesh, s.level, self.emit)
+        winner = choice["winner"]
+        if winner != provisional:
+            self.config.lighting = winner  # the config the run and its parts share
+            self.appearance.adopt_lighting(lighting, self.folder.path)
+            cycle = self.appearance.material_cycle(s.mesh, self.material, views, s.level)
+            if cycle is not None:
+                record.add_cycle(cycle)
+                self.track("material")
+        choice["switched"] = winner != provisional
+        choice["seconds_in_run"] = round(time.perf_counter() - start, 3)
+        self.lighting_choice = choice
+        s.timed("lighting_choice", start)
+        return choice
 
     def _plan(self) -> None:
         """The planner's estimate of the time left, once, after the first level: measuring this

@@ -210,42 +210,57 @@ def run(args) -> int:
             if video is not None:
                 capture = video_capture(video, folder, args.resume, emit)
                 Appearance.check(capture, config)
-            choice = initial = None
+            choice = initial = later = None
             if config.lighting == "auto":
-                config, choice, initial = _choose_lighting(args, capture, config, emit, folder)
+                config, choice, initial, later = _choose_lighting(args, capture, config, emit, folder)
             planner, limit = _preset_event(args, emit, config, capture, folder)
             remaining = resumed(folder.events, config.time_budget_s) if args.resume else None  # its plan, phases done
             return reconstruct(capture, folder, config, emit, resume=args.resume, planner=planner,
                                tracking=tracking.start, remaining=remaining, started=started,
-                               level_limit=limit, lighting_choice=choice, initial=initial).exit_code
+                               level_limit=limit, lighting_choice=choice, initial=initial,
+                               lighting_probe=later).exit_code
     finally:
         emit.close()
 
 
 def _choose_lighting(args, capture, config, emit, folder):
-    """``--lighting auto``: (the config with the winner's lighting, report.json
-    ``lighting_choice``, the run's initial mesh and its kind, or None on resume). The probe
-    (planning/lighting_choice.py) fits only what the run fits (``--track-accuracy``'s held-out
-    views are left out), on the run's own initial mesh, which the run then starts from; a
-    resumed run keeps the choice its folder's events recorded. The capture is then lit as the
-    winner says (``resolve_lighting``), and a time budget's preset is chosen again for the
-    winner's kind of lighting."""
+    """``--lighting auto``: (the config with the lighting the run starts under, report.json
+    ``lighting_choice`` when made before the run, the run's initial mesh and its kind or None,
+    the ``lighting_choice.Deferred`` that chooses after the first level or None).
+
+    A capture that records no light is probed after the run's first level, on its mesh
+    (``lighting_choice.Deferred``): the run starts under the provisional lighting and
+    ``reconstruct`` switches to the winner. A capture with its own lights, or too few frames,
+    is probed here, before the run, on the run's own initial mesh, which the run then starts
+    from. The probe fits only what the run fits (``--track-accuracy``'s held-out views are left
+    out); a time budget's preset is then chosen again for the winner's kind of lighting. A
+    resumed run keeps the choice its folder's events recorded (or, when its first run stopped
+    before choosing, waits for the end of its level as a new run does). A deferred choice keeps
+    the preset chosen for ``auto`` (an environment: ``lighting_kind``): the run has started."""
     choice = lighting_choice.resumed(read_log(folder.events)) if args.resume else None
+    if choice is not None:
+        emit(lighting_choice.EVENT, **choice)
+        return dataclasses.replace(config, lighting=resolve_lighting(capture, choice["winner"], source=args.capture)), \
+            choice, None, None
+    fits, _ = tracking.split(capture, config)  # the frames the run fits, as it splits them
+    modes = lighting_choice.candidates(fits)
+    if lighting_choice.deferred(fits, modes):
+        later = lighting_choice.Deferred(config, modes, config.time_budget_s)
+        lighting = resolve_lighting(capture, later.provisional, source=args.capture)
+        return dataclasses.replace(config, lighting=lighting), None, None, later
     initial = None
-    if choice is None:
-        fits, _ = tracking.split(capture, config)  # the frames the run fits, as it splits them
+    if not args.resume:
         emit("stage", stage="init", level=0, faces=0)
         initial = cached_initial_mesh(fits, config.init, config.initial_faces,
                                       warn=lambda message: emit("warning", message=message))
-        choice = lighting_choice.choose(fits, config, emit, config.time_budget_s, mesh=initial[0])
-    else:
-        emit(lighting_choice.EVENT, **choice)
+    choice = lighting_choice.choose(fits, config, emit, config.time_budget_s, modes=modes,
+                                    mesh=None if initial is None else initial[0])
     lighting = resolve_lighting(capture, choice["winner"], source=args.capture)
     before = choose_preset(args)
     args.lighting_kind = lighting_kind(capture, lighting)
-    if choose_preset(args) != before:
+    if choose_preset(args) != before:  # a time budget's preset, by the winner's kind of lighting
         config = config_from_args(args)
-    return dataclasses.replace(config, lighting=lighting), choice, initial
+    return dataclasses.replace(config, lighting=lighting), choice, initial, None
 
 
 @contextmanager

@@ -2,9 +2,9 @@
 
 Real captures mix light fixed to the room with light that moves with the camera (a flash, a
 lamp on the rig, the operator), and neither the capture's kind nor its name says which
-dominates. So each model the capture allows (``candidates``) is fitted for a few steps on the
-run's initial mesh, with a constant diffuse material, on every frame but ``HELD_OUT`` spread
-ones, and scored on those:
+dominates. So each model the capture allows (``candidates``) is fitted for a few steps on a
+mesh of the run (its first level's: see below), with a constant diffuse material, on every
+frame but ``HELD_OUT`` spread ones, and scored on those:
 
 - ``estimate``: an environment map fixed to the world (backend.lighting.estimated_map);
 - ``rig``: the same map fixed to each view's camera (lamps on the camera rig);
@@ -30,7 +30,23 @@ where a run takes them, and on a capture that mixes room and rig light the first
 within a dB or so, in an order that flipped with the initial mesh, while full runs told them
 apart. So when the first two are within ``TIE_DB``, both are fitted again from their start for
 ``RUNOFF_CYCLES`` cycles and the run-off's held-out loss decides; the report keeps both
-rounds (``runoff``). With a budget, the run-off takes ``RUNOFF_SHARE`` of the probe's share."""
+rounds (``runoff``). With a budget, the run-off takes ``RUNOFF_SHARE`` of the probe's share.
+
+When the choice is made (``Deferred``): a capture that records no light is probed on the mesh
+of the run's first level, not on its initial carve. The carve is too poor a surface to rank
+lightings on: its shading errors swamp the differences between the models
+(docs/notes/2026-12-02-lighting-after-level.md). So the first level runs under the
+``PROVISIONAL`` lighting, the summed maps: they can light the frames as either map alone does (and a flash nearly as the rig map does),
+so the first level's geometry steps are bent least by a kind of light the model lacks. The
+probe then fits every candidate from its start on that level's mesh, the run continues under
+the winner, its fitted lighting taken over from the probe, and one material cycle re-fits the
+material under it. A winner whose held-out loss is within ``KEEP_DB`` of the provisional's
+(without the handicap) does not replace it: the summed maps hold either single map's light,
+the run is already under them, and the probe's constant-material fits do not tell models
+that close apart (the run keeps the provisional lighting, ``kept``). The mesh was shaped
+under the provisional lighting, which may favour it a little. A capture that records its lights
+(``captured`` among the candidates) or has too few frames to probe is decided before the run,
+on the initial mesh, as before (its own lights are exact: no surface is needed to rank them)."""
 
 from __future__ import annotations
 
@@ -67,8 +83,14 @@ RUNOFF_SHARE = 0.5  # of the probe's time share, kept for the run-off
 # this many dB higher, so they win only where the second map earns its texels
 SUMMED_HANDICAP_DB = 0.5
 SEED = 9_000_011
+PROVISIONAL = "world+rig"  # the lighting of the first level while the choice waits for its mesh
+# a probe winner this close to the provisional lighting (held-out dB, no handicap) does not replace it
+KEEP_DB = TIE_DB
 NAMES = {"estimate": "world map", "rig": "rig map", "world+rig": "world + rig maps", "flash": "flash at the camera",
          "captured": "captured lights"}
+
+
+LIVE = "_lighting"  # a result's fitted lighting object (in memory only, dropped from the report)
 
 
 def candidates(capture: Capture) -> list[str]:
@@ -156,11 +178,11 @@ def _fit_and_score(mode: str, fit: Capture, held: Capture, mesh, config, seconds
     loss = held_out_loss(renders, held_views)
     return {"model": mode, "name": NAMES[mode], "loss": loss,
             "psnr": round(-10 * math.log10(loss), 3) if loss > 0 else math.inf,
-            "cycles": cycles, "seconds": round(time.perf_counter() - start, 3)}
+            "cycles": cycles, "seconds": round(time.perf_counter() - start, 3), LIVE: appearance.lighting}
 
 
 def choose(capture: Capture, config, emit, budget_s: float | None = None, modes: list[str] | None = None,
-           mesh=None) -> dict:
+           mesh=None, probed_on: str = "initial mesh", fitted: dict | None = None, announce: bool = True) -> dict:
     """The probe on ``capture`` (not changed): report.json ``lighting_choice``.
 
     ``config``: the run's settings; ``emit``: the run's emitter (a ``stage`` event
@@ -168,10 +190,14 @@ def choose(capture: Capture, config, emit, budget_s: float | None = None, modes:
     ``budget_s``: the run's time budget (None: none); ``mesh``: the initial mesh to probe on
     (the run's own, carved from every frame it fits, the held-out two included: all candidates
     share it, so it favours none, and the run need not carve twice), else one carved from the
-    probe's fitted frames at ``FACES``. Returns {"winner", "runner_up",
+    probe's fitted frames at ``FACES``; ``probed_on``: what that mesh is, in words (the report's
+    ``probed_on``); ``fitted``: a dict that receives the winner's fitted lighting object under
+    its model's name (None for ``captured``), for the run to continue from; ``announce``: emit
+    the ``lighting_choice`` event here (else the caller does). Returns {"winner", "runner_up",
     "margin_db", "candidates": [{"model", "name", "loss", "psnr", "cycles", "seconds"}],
-    "held_out": [frame names], "size", "seconds", "line"}; with too few frames to hold any out,
-    the world map (the default before the probe existed), with ``candidates`` empty and a ``note``."""
+    "held_out": [frame names], "size", "faces", "probed_on", "seconds", "line"}; with too few
+    frames to hold any out, the world map (the default before the probe existed), with
+    ``candidates`` empty and a ``note``."""
     start = time.perf_counter()
     modes = modes or candidates(capture)
     n = len(capture.frames)
@@ -180,8 +206,9 @@ def choose(capture: Capture, config, emit, budget_s: float | None = None, modes:
         out = {"winner": winner, "runner_up": None, "margin_db": None, "candidates": [], "held_out": [],
                "size": SIZE, "seconds": 0.0,
                "note": f"not probed: {n} frames ({MIN_FRAMES} needed)" if n < MIN_FRAMES else "one candidate",
-               "line": f"lighting: {NAMES[winner]} (not probed)"}
-        emit(EVENT, **out)
+               "probed_on": None, "line": f"lighting: {NAMES[winner]} (not probed)"}
+        if announce:
+            emit(EVENT, **out)
         return out
     emit("stage", stage="lighting:probe", level=0, faces=0)
     ids = set(held_out(n))
@@ -210,15 +237,77 @@ def choose(capture: Capture, config, emit, budget_s: float | None = None, modes:
             ranked = sorted(runoff, key=_rank) + ranked[2:]
     winner, second = ranked[0], ranked[1]
     margin = _margin(winner, second)
+    if fitted is not None:
+        fitted[winner["model"]] = winner[LIVE]
     for r in results + (runoff or []):
         r["loss"] = round(r["loss"], 8)
+        r.pop(LIVE, None)
     out = {"winner": winner["model"], "runner_up": second["model"], "margin_db": round(margin, 3),
            "candidates": results, "runoff": runoff, "held_out": [capture.frames[i].name for i in sorted(ids)],
-           "size": SIZE, "faces": mesh.n_faces, "seconds": round(time.perf_counter() - start, 3),
+           "size": SIZE, "faces": mesh.n_faces, "probed_on": probed_on, "seconds": round(time.perf_counter() - start, 3),
            "line": f"lighting: {winner['name']}, by {margin:.1f} dB over the {second['name']}"
-                   + (" (run-off)" if runoff else "")}
-    emit(EVENT, **out)
+                   + (" (run-off)" if runoff else "") + ("" if probed_on == "initial mesh" else f", on the {probed_on}")}
+    if announce:
+        emit(EVENT, **out)
     return out
+
+
+def deferred(capture: Capture, modes: list[str] | None = None) -> bool:
+    """Whether the choice waits for the first level's mesh (``Deferred``): the capture records
+    no light of its own and has the frames to probe."""
+    modes = modes or candidates(capture)
+    return "captured" not in modes and len(modes) > 1 and len(capture.frames) >= MIN_FRAMES
+
+
+class Deferred:
+    """The choice made after the run's first level (``reconstruct``'s ``lighting_probe``): the
+    run starts under ``PROVISIONAL``, calls ``choose`` with the fitted capture and the level's
+    mesh, takes over the winner's lighting, and emits the event with ``announce`` once its
+    snapshot holds the winner (so a resumed run finds the event only with the winner's files)."""
+
+    provisional = PROVISIONAL
+
+    def __init__(self, config, modes: list[str], budget_s: float | None):
+        self.config, self.modes, self.budget_s = config, modes, budget_s
+
+    def choose(self, capture: Capture, mesh, level: int, emit) -> tuple[dict, object]:
+        """(report.json ``lighting_choice``, the winner's fitted lighting object or None) on
+        ``mesh``, the mesh that level ``level`` ended with under the provisional lighting."""
+        fitted: dict = {}
+        where = f"level {level} mesh ({self.provisional} provisional)"
+        choice = choose(capture, self.config, emit, self.budget_s, modes=self.modes, mesh=mesh, probed_on=where,
+                        fitted=fitted, announce=False)
+        choice.update(provisional=self.provisional, level=level)
+        self.settle(choice)
+        return choice, None if choice["kept"] else fitted.get(choice["winner"])
+
+    def settle(self, choice: dict) -> dict:
+        """``choice`` with the provisional lighting as its winner when the probe's winner is
+        within ``KEEP_DB`` of it (``kept`` true; ``runner_up`` the probe's winner, ``margin_db``
+        minus the gap), else as the probe left it (``kept`` false)."""
+        gap = self.gap(choice)
+        choice["kept"] = gap is not None and gap < KEEP_DB
+        if choice["kept"]:
+            best = choice["winner"]
+            choice.update(winner=self.provisional, runner_up=best, margin_db=round(-gap, 3),
+                          line=f"lighting: {NAMES[self.provisional]} kept, {gap:.1f} dB behind the {NAMES[best]} "
+                               f"(under {KEEP_DB:g} dB), on the {choice['probed_on']}")
+        return choice
+
+    def gap(self, choice: dict) -> float | None:
+        """10 log10(provisional's held-out loss / the winner's), dB, without the handicap, from the
+        run-off when both were in it, else from the first round; None when the provisional won."""
+        if choice["winner"] == self.provisional:
+            return None
+        for round_ in (choice.get("runoff") or [], choice["candidates"]):
+            losses = {r["model"]: r["loss"] for r in round_}
+            if self.provisional in losses and choice["winner"] in losses and losses[choice["winner"]] > 0:
+                return 10 * math.log10(losses[self.provisional] / losses[choice["winner"]])
+        return None
+
+    @staticmethod
+    def announce(emit, choice: dict) -> None:
+        emit(EVENT, **choice)
 
 
 def resumed(events: list[dict]) -> dict | None:

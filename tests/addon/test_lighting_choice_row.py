@@ -13,6 +13,8 @@ def test_the_winner_and_its_margin_become_one_line():
     assert lighting_choice_summary({"winner": "estimate", "margin_db": None}) == "lighting: world map (not probed)"
     assert lighting_choice_summary({"winner": "world+rig", "margin_db": 2.0, "runoff": [{}, {}]}) == \
         "lighting: world + rig maps, by 2.0 dB (run-off)"
+    assert lighting_choice_summary({"winner": "world+rig", "runner_up": "estimate", "margin_db": -0.225,
+                                    "kept": True}) == "lighting: world + rig maps kept, 0.2 dB behind the world map"
     state.update({"event": "lighting", "model": "estimate", "frame": "camera", "resolution": [16, 8],
                   "when": "fitted", "stage": "constant"})
     assert state.lighting_choice == "lighting: rig map, by 1.2 dB"  # a later lighting event leaves the row

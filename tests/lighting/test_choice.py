@@ -10,6 +10,10 @@ and a capture that records its lights do not probe."""
 from __future__ import annotations
 
 import json
+import math
+import os
+import subprocess
+import sys
 
 import pytest
 
@@ -21,7 +25,7 @@ from backend.capture.load import load_capture  # noqa: E402
 from backend.events import read_log  # noqa: E402
 from backend.optimize.config import ReconstructConfig  # noqa: E402
 from backend.planning import lighting_choice  # noqa: E402
-from tests.helpers import run_cli, shared_data  # noqa: E402
+from tests.helpers import REPO, run_cli, shared_data  # noqa: E402
 from tests.lighting.test_fitted import ESTIMATE_FAST, ESTIMATE_SETTINGS  # noqa: E402
 
 CAMERA_FIXED = {"flash", "rig"}
@@ -70,6 +74,24 @@ def test_a_map_lit_capture_picks_the_world_map(tmp_path):
     assert choice["winner"] == "estimate", choice
 
 
+def test_a_near_tie_after_the_first_level_keeps_the_provisional_lighting():
+    later = lighting_choice.Deferred(ReconstructConfig(), ["estimate", "rig", "world+rig", "flash"], None)
+
+    def choice(winner, losses, runoff=None):
+        rows = lambda d: [{"model": m, "loss": x} for m, x in d.items()]  # noqa: E731
+        return {"winner": winner, "runner_up": None, "margin_db": 1.0, "candidates": rows(losses),
+                "runoff": rows(runoff) if runoff else None, "probed_on": "level 0 mesh", "line": ""}
+
+    near = later.settle(choice("estimate", {"estimate": 0.040, "world+rig": 0.042, "rig": 0.05},
+                               runoff={"estimate": 0.035, "world+rig": 0.037}))
+    assert near["kept"] and near["winner"] == lighting_choice.PROVISIONAL and near["runner_up"] == "estimate"
+    assert near["margin_db"] == pytest.approx(-10 * math.log10(0.037 / 0.035), abs=1e-3)  # the run-off's gap
+    far = later.settle(choice("flash", {"flash": 0.010, "world+rig": 0.030, "estimate": 0.040}))
+    assert not far["kept"] and far["winner"] == "flash"
+    own = later.settle(choice("world+rig", {"world+rig": 0.030, "estimate": 0.031}))
+    assert not own["kept"] and own["winner"] == "world+rig"
+
+
 def test_held_out_frames_are_spread_and_distinct():
     for n in (6, 7, 10, 49):
         ids = lighting_choice.held_out(n)
@@ -94,7 +116,53 @@ def test_reconstruct_probes_only_without_an_explicit_lighting(tmp_path, explicit
     start = next(e for e in read_log(run / "events.jsonl") if e.get("event") == "start")
     assert start["settings"]["lighting"] == "auto"  # the default for a capture without light
     assert len(events) == 1 and events[0]["winner"] == choice["winner"]
-    assert len(choice["candidates"]) == 4 and choice["margin_db"] > 0 and choice["line"].startswith("lighting: ")
+    assert len(choice["candidates"]) == 4 and (choice["margin_db"] > 0 or choice["kept"])
+    assert choice["line"].startswith("lighting: ")
     assert report["settings"]["lighting"] == choice["winner"]
     model = report["lighting"]["model"]
     assert model == ("flash" if choice["winner"] == "flash" else "environment map (estimated)")
+    _chosen_after_the_first_level(read_log(run / "events.jsonl"), choice)
+
+
+def _chosen_after_the_first_level(log: list[dict], choice: dict) -> None:
+    """The choice was made on the first level's mesh, under the provisional lighting, after that
+    level's geometry steps and before any of the next level's."""
+    assert choice["probed_on"].startswith("level 0 mesh") and choice["provisional"] == lighting_choice.PROVISIONAL
+    assert choice["line"].endswith("on the " + choice["probed_on"])
+    kinds = [(e["event"], e.get("stage"), e.get("level")) for e in log]
+    at = [k[0] for k in kinds].index(lighting_choice.EVENT)
+    probe = kinds.index(("stage", "lighting:probe", 0))
+    levels = [(i, k[2]) for i, k in enumerate(kinds) if k[:2] == ("stage", "geometry")]  # each level's start
+    assert levels and levels[0][1] == 0 and levels[0][0] < probe < at, "the probe did not follow the first level"
+    assert all(level == 0 for i, level in levels if i < at)
+
+
+def test_a_run_stopped_after_the_choice_resumes_under_the_winner(tmp_path):
+    """--resume of an auto run stopped after its choice: no second probe, the winner's lighting
+    comes back from the folder (a flash from the state, a map from its files)."""
+    path = _capture(tmp_path, "--lighting", "flash", "--light-intensity", 2.0)
+    run = tmp_path / "run"
+    settings = {**ESTIMATE_SETTINGS, "level_iterations": 6, "min_level_iterations": 3, "max_levels": 2,
+                "time_budget_s": 60}
+    env = dict(os.environ, PYTHONPATH=str(REPO), PYTHONUNBUFFERED="1", SFT_RECONSTRUCT_SETTINGS=json.dumps(settings))
+    proc = subprocess.Popen([sys.executable, "-m", "backend", "reconstruct", str(path), "--out", str(run),
+                             *ESTIMATE_FAST], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env,
+                            cwd=REPO)
+    for line in proc.stdout:
+        if json.loads(line)["event"] == lighting_choice.EVENT:
+            (run / "STOP").touch()
+            break
+    proc.communicate(timeout=300)
+    assert proc.returncode == 130, "the run did not stop after its choice"
+    first = [e for e in read_log(run / "events.jsonl") if e.get("event") == lighting_choice.EVENT]
+    assert len(first) == 1
+    resumed = run_cli("reconstruct", path, "--out", run, "--resume", *ESTIMATE_FAST, timeout=400,
+                      env={"SFT_RECONSTRUCT_SETTINGS": json.dumps(settings)})
+    assert resumed.returncode == 0, resumed.stderr[-3000:]
+    log = read_log(run / "events.jsonl")
+    later = log[[e["event"] for e in log].index("start", 1):]
+    assert not any(e.get("stage") == "lighting:probe" for e in later)  # the recorded choice is kept
+    report = json.loads((run / "report.json").read_text())
+    winner = first[0]["winner"]
+    assert report["lighting_choice"]["winner"] == winner and report["settings"]["lighting"] == winner
+    assert report["lighting"]["model"] == ("flash" if winner == "flash" else "environment map (estimated)")
