@@ -110,7 +110,7 @@ def add_arguments(parser) -> None:
     parser.add_argument("--sweeps", type=int, default=8)
     parser.add_argument("--rounds", type=int, default=3)
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--newton", type=int, default=4,
+    parser.add_argument("--newton", type=int, default=6,
                         help="Gauss-Newton steps on each frame's pose after the last refinement's sweeps (0: none)")
     parser.add_argument("--intrinsics", action="store_true",
                         help="refine the shared focal length and principal point too (the perturbation is poses only)")

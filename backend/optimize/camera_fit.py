@@ -265,14 +265,13 @@ class CameraFit:
 
     def _newton(self, i: int, k: Correction, steps: int, objective, camera: Camera, place, points: np.ndarray,
                 l0: float, spp: int, seed: int, check_stop) -> None:
-        """``steps`` Levenberg-Marquardt steps on frame ``i``'s pose in ``k`` (``camera_newton``):
-        a step is kept only when the loss (the same seed and samples before and after) plus the
-        prior falls; a rejected step is retried once at ten times the damping. The prior is the
-        sweeps' with the frame's loss when the steps begin (at most ``l0``) as its unit: the
-        misregistration the start's loss held is gone by then, and a prior in its units would
-        outweigh the shallow direction's curvature."""
+        """``steps`` Gauss-Newton steps on frame ``i``'s pose in ``k`` (``camera_newton``): a step
+        is kept only when the loss (the same seed and samples before and after) plus the prior
+        falls; a rejected step is retried once at ``BACKTRACK`` of its length. The prior is the
+        sweeps' scaled by ``STEP_PRIOR`` with the frame's loss when the steps begin (at most
+        ``l0``) as its unit."""
         focus, distance = self.focus[i], float(self.distance[i])
-        weight = [PRIOR * l0]
+        weight = [gn.STEP_PRIOR * PRIOR * l0]
 
         def prior(p):
             return gn.prior_residual(p, focus, distance, weight[0], SIGMA_ROT, SIGMA_T)
@@ -281,7 +280,7 @@ class CameraFit:
             m, b, _ = vertex_map(camera, *delta(p[:3], p[3:5], float(p[5]), focus), k.sigma, k.principal)
             return points @ m.T + b
 
-        lam, spp_hi = gn.LAMBDA0, gn.RESIDUAL_SPP * spp
+        spp_hi = gn.RESIDUAL_SPP * spp
         for step in range(steps):
             if check_stop is not None:
                 check_stop()
@@ -293,12 +292,13 @@ class CameraFit:
             if not (np.all(np.isfinite(res)) and np.all(np.isfinite(jac))):
                 return
             if step == 0:  # near the optimum the prior's weight follows the loss there, not the start's
-                weight[0] = PRIOR * min(l0, float(np.mean(res**2)))
+                weight[0] = gn.STEP_PRIOR * PRIOR * min(l0, float(np.mean(res**2)))
             e, jac_e = prior(p), gn.jacobian_fd(prior, p)
             current = float(np.mean(res**2) + 0.5 * e @ e)
-            for _ in range(2):
+            dp = gn.lm_step(jac, res, e, jac_e, gn.LAMBDA0)
+            for scale in (1.0, gn.BACKTRACK):
                 trial = k.copy()
-                gn.set_pose(trial, i, p + gn.lm_step(jac, res, e, jac_e, lam))
+                gn.set_pose(trial, i, p + scale * dp)
                 trial.clamp()
                 pt = gn.pose_vector(trial, i)
                 qt, _ = place(i, trial)
@@ -306,9 +306,7 @@ class CameraFit:
                 new = float(np.mean(gn.residual(objective, i, qt, seed_r, spp_hi) ** 2) + 0.5 * et @ et)
                 if np.isfinite(new) and new < current:
                     gn.set_pose(k, i, pt)
-                    lam = max(lam / 3.0, 1e-6)
                     break
-                lam *= 10.0
         place(i, k)
 
     # -- outputs -----------------------------------------------------------------------------------

@@ -15,15 +15,24 @@ against the toned target, per pixel and channel, N of them) the data term is L =
 J = dr/dp is six forward-mode derivatives of one render (the vertex tangents dq/dp_j are those of
 the closed-form map, taken by central differences in float64). The prior is the residual
 e(p) = sqrt(w) (log R_delta / SIGMA_ROT, t / (d SIGMA_T)) with E = |e|^2 / 2 (``camera_fit``'s
-prior, w = PRIOR times the frame's loss when the steps begin). The step solves
-(H + lambda diag H) dp = -g with H = 2 J^T J / N + J_e^T J_e, g = 2 J^T r / N + J_e^T e.
+prior, w = ``STEP_PRIOR`` times the frame's loss when the steps begin). The step solves
+(H + lambda diag H) dp = -g with H = 2 J^T J / N + J_e^T J_e, g = 2 J^T r / N + J_e^T e, and
+lambda = ``LAMBDA0`` = 0: the shallow direction is a mix of an orbit and a pan whose eigenvalue is
+about 1e-3 of the diagonal entries, so damping in units of diag H, at any lambda above about
+1e-4, shortens exactly the step that direction needs.
 
 Noise. The residual comes from a primal render at ``RESIDUAL_SPP`` x the level's samples with one
 seed, the Jacobian from another seed: a residual and a Jacobian of the same samples are
 correlated, which biases J^T r (the gradient of the renders' variance). A step is kept only
 when the loss at the new pose, rendered with the same seed and samples as the current one
 (common random numbers: the two renders' noise cancels in the comparison), plus the prior is
-lower; else lambda grows and the step is retried once at the larger damping."""
+lower; else the step is retried once at half its length (``BACKTRACK``).
+
+Prior. With the mesh frozen the data term has no gauge freedom, and the sweeps' prior (weight
+0.05 of the loss per sigma^2) is as stiff as the data term along the shallow direction near the
+optimum (curvature about 0.03 against 0.05 rad^-2 in units of the loss), so it would hold that
+direction at a fraction of its error. ``STEP_PRIOR`` = 0: the steps follow the data; the sweeps
+keep their prior, which holds the common motion of the cameras between levels."""
 
 from __future__ import annotations
 
@@ -33,8 +42,10 @@ import numpy as np
 
 from .camera_model import delta, log_rotation
 
-RESIDUAL_SPP = 4  # the residual's and the comparison's samples, in multiples of the level's spp
-LAMBDA0 = 1e-3  # the starting damping (relative to diag H)
+RESIDUAL_SPP = 16  # the residual's and the comparison's samples, in multiples of the level's spp
+LAMBDA0 = 0.0  # the damping (relative to diag H)
+BACKTRACK = 0.5  # a rejected step is retried once at this fraction of its length
+STEP_PRIOR = 0.0  # the prior's weight during the steps, in units of the sweeps' (camera_fit.PRIOR)
 MAX_STEP = float(np.radians(0.5))  # the largest step in any pose parameter (rad, or distances)
 
 

@@ -72,3 +72,20 @@ def test_newton_steps_recover_perturbed_cameras_with_few_sweeps(tiny_capture):
     assert out["history"][-1]["newton"] == 3 and not out["history"][-1]["diverged"]
     assert after["reprojection_px"] < 0.3 * before["reprojection_px"], out
     assert after["rotation_deg"]["mean"] < 0.8 * before["rotation_deg"]["mean"], out
+
+
+def test_the_undamped_step_moves_the_shallow_direction_that_diagonal_damping_holds():
+    """A pan against an orbit: two columns nearly alike, so the smaller eigenvalue of J^T J is
+    about 1e-4 of its diagonal. The step at ``LAMBDA0`` recovers an error along that direction;
+    damping of 1e-3 diag H (the former start) recovers a small part of it."""
+    rng = np.random.default_rng(2)
+    base = rng.normal(size=(2000, 6))
+    base[:, 3] = base[:, 1] + 0.02 * rng.normal(size=2000)  # the orbit sees the pan plus a parallax
+    shallow = np.array([0.0, 1.0, 0.0, -1.0, 0.0, 0.0]) / np.sqrt(2.0)
+    truth = 2e-3 * shallow
+    res = -base @ truth
+    e, jac_e = np.zeros(6), np.zeros((6, 6))
+    undamped = gn.lm_step(base, res, e, jac_e, gn.LAMBDA0)
+    damped = gn.lm_step(base, res, e, jac_e, 1e-3)
+    assert abs(undamped @ shallow / (truth @ shallow) - 1.0) < 1e-6
+    assert damped @ shallow / (truth @ shallow) < 0.5
