@@ -52,6 +52,7 @@ def main(argv=None) -> int:
     import bpy  # before anything imports pymeshlab (both ship Embree)
 
     bpy.context.preferences.use_preferences_save = False
+    bpy.context.preferences.system.use_online_access = True  # what the user allows when Install Backend asks
     steps: dict[str, float] = {}
 
     def step(name, call):
