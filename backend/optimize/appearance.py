@@ -137,8 +137,8 @@ class Appearance:
             lighting.world.path, lighting.rig.path = folder / ESTIMATED_MAP, folder / RIG_FILENAME
         elif isinstance(lighting, EstimatedEnvironment):
             lighting.path = folder / ESTIMATED_MAP
-        keep = {ESTIMATED_MAP} if isinstance(lighting, EstimatedEnvironment) else set()
-        keep |= {ESTIMATED_MAP, RIG_FILENAME} if isinstance(lighting, SummedEnvironment) else set()
+        keep = ({ESTIMATED_MAP, RIG_FILENAME} if isinstance(lighting, SummedEnvironment)
+                else {ESTIMATED_MAP} if isinstance(lighting, EstimatedEnvironment) else set())
         for name in {ESTIMATED_MAP, RIG_FILENAME} - keep:
             (folder / name).unlink(missing_ok=True)
         self.lighting = lighting
