@@ -1,12 +1,13 @@
 """Try the add-on as a new user would: build the zip, install it into a fresh Blender user
 folder, press Install Backend, then click through with the panel's defaults and time each step.
 
-    python scripts/journey.py --video orbit.mp4 --masks masks/0000.png [--env map.hdr] --out DIR
+    python scripts/journey.py --video orbit.mp4 [--masks masks/0000.png] [--env map.hdr] --out DIR
         [--truth ORBIT_DIR] [--python PY] [--budget MINUTES]
 
 Runs with the bpy module (the venv's python). Steps: Install Backend (skipped with
 ``--python``, which names an interpreter that already imports mitsuba), Import Video,
-Import Masks, Import Environment Map (only with ``--env``; without a map the panel's
+Import Masks (only with ``--masks``; without them the panel's Masks stays Automatic: Solve
+Cameras makes them from its own solve), Import Environment Map (only with ``--env``; without a map the panel's
 Lighting stays Estimate: the run fits an environment with the material), Solve Cameras,
 Reconstruct, Relit Preview, Export glTF, each with the defaults the panel shows
 (``--budget`` changes the Time Budget only). With
@@ -32,7 +33,8 @@ ROOT = Path(__file__).resolve().parents[1]
 def parse_args(argv=None):
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--video", type=Path, required=True)
-    p.add_argument("--masks", type=Path, required=True, help="one file of the mask sequence, or a mask video")
+    p.add_argument("--masks", type=Path,
+                   help="one file of the mask sequence, or a mask video (default: none, Masks Automatic)")
     p.add_argument("--env", type=Path, help="the HDR map (default: none, Lighting Estimate)")
     p.add_argument("--out", type=Path, required=True, help="folder for the user folder, capture and results")
     p.add_argument("--truth", type=Path, help="render_orbit.py output folder, to score the result")
@@ -95,7 +97,8 @@ def main(argv=None) -> int:
     step("Import Video", lambda: bpy.ops.sft.import_video(filepath=str(video)))
     capture = Path(sft.capture_dir)
     manifest = json.loads((capture / "frames.json").read_text())
-    step("Import Masks", lambda: bpy.ops.sft.import_masks(filepath=str(args.masks.resolve())))
+    if args.masks:
+        step("Import Masks", lambda: bpy.ops.sft.import_masks(filepath=str(args.masks.resolve())))
     if args.env:
         step("Import Environment Map", lambda: bpy.ops.sft.import_environment(filepath=str(args.env.resolve())))
     step("Solve Cameras", lambda: bpy.ops.sft.solve_cameras())
@@ -107,7 +110,8 @@ def main(argv=None) -> int:
                "user_min": round(sum(v for k, v in steps.items() if k not in ("install zip", "Install Backend")) / 60, 2),
                "frames": len(manifest["frames"]), "run": str(run),
                "settings": {"quality": sft.preset, "time_budget": sft.time_budget, "material": sft.material,
-                            "init": sft.init, "effects": sft.effects, "lighting": sft.lighting}}
+                            "init": sft.init, "effects": sft.effects, "lighting": sft.lighting,
+                            "masks": "imported" if args.masks else sft.masks_mode.lower()}}
     if args.truth:
         sys.path.insert(0, str(ROOT))
         from backend.bench.realworld import score
@@ -123,6 +127,11 @@ def main(argv=None) -> int:
     return 0
 
 
+# The table's columns; the record's rows also keep every step's minutes and the commit.
+SHOWN = ["try", "masks", "lighting", "Solve Cameras (min)", "Reconstruct (min)", "user steps (min)",
+         "lighting model", "F1@0.01", "Chamfer-L1", "camera centres max (%)"]
+
+
 def write_journey_record(args, figures: dict, argv) -> None:
     """One row of the ``journey`` record: each step's minutes, the run's lighting, its figures."""
     sys.path.insert(0, str(ROOT))
@@ -131,7 +140,8 @@ def write_journey_record(args, figures: dict, argv) -> None:
 
     steps = figures["steps_s"]
     report = json.loads((Path(figures["run"]) / "report.json").read_text())
-    row = {"try": args.record, "frames": figures["frames"], "lighting": figures["settings"]["lighting"],
+    row = {"try": args.record, "frames": figures["frames"], "masks": figures["settings"]["masks"],
+           "lighting": figures["settings"]["lighting"],
            "time budget (min)": figures["settings"]["time_budget"],
            **{f"{k} (min)": round(v / 60, 2) for k, v in steps.items() if k not in ("install zip",)},
            "user steps (min)": figures["user_min"], "commit": code_version()}
@@ -147,10 +157,14 @@ def write_journey_record(args, figures: dict, argv) -> None:
     if last.is_file() and any("try" not in r for r in json.loads(last.read_text())["figures"]["rows"]):
         last.unlink()  # a table of another layout: its rows cannot merge with these
     args_line = " ".join(str(a) for a in (sys.argv[1:] if argv is None else argv))
+    run = f"python scripts/journey.py {args_line}"
+    kept = json.loads(last.read_text()).get("commands_run", []) if last.is_file() else []
     write_record("journey", title="The artist's path",
                  context="orbit videos through the Blender panel's defaults on a fresh install: "
                          "built zip, Install Backend, the panel's buttons in order, each step timed",
-                 rows=[row], merge_on="try", command=f"python scripts/journey.py {args_line}")
+                 rows=[row], merge_on="try", show=SHOWN, commands_run=[c for c in kept if c != run] + [run],
+                 command="python scripts/journey.py --video ORBIT/orbit.mp4 [--masks ORBIT/masks/0000.png] "
+                         "[--env MAP.hdr] --truth ORBIT --out TRY --record LABEL")
 
 
 if __name__ == "__main__":

@@ -5,7 +5,8 @@ paper's point lights, a textured albedo) is rendered with exact cameras; each fr
 then perturbed by ``--rotation`` degrees (a random axis through the camera centre) and
 ``--translation`` % of its distance to the object (a random direction). With the true mesh and
 its per-vertex material fixed, ``CameraFit.refine`` (backend.optimize.camera_fit) runs
-``--rounds`` refinements of ``--sweeps`` sweeps at ``--size`` px, the last followed by
+``--rounds`` refinements of ``--sweeps`` sweeps at ``--size`` px and path depth ``--max-depth``
+(0: the capture's own, the light transport a run whose effects match the scene renders), the last followed by
 ``--newton`` Gauss-Newton steps on each frame's pose (backend.optimize.camera_newton). The errors
 against the true cameras are taken after the similarity that best aligns the camera centres (the
 gauge of a run whose mesh follows the cameras) and, since here the mesh is fixed and so fixes the
@@ -66,9 +67,11 @@ def perturb(cameras, centre, rotation_deg: float, translation_pct: float, seed: 
 
 def recovery(capture_root: Path, *, rotation_deg: float = 1.0, translation_pct: float = 1.0, size: int = 64,
              sweeps: int = 6, rounds: int = 2, seed: int = 0, spp: int = 16, intrinsics: bool = True,
-             newton: int = 0) -> dict:
+             newton: int = 0, max_depth: int = 2) -> dict:
     """Perturb the capture's cameras, refine them against its true mesh and material, and
-    return the errors before and after (``pose_errors``) and the mean reprojection error (px)."""
+    return the errors before and after (``pose_errors``) and the mean reprojection error (px).
+    ``max_depth``: the refinement's path depth (2: direct light, ``direct_projective``; more:
+    ``prb_projective``)."""
     capture = load_capture(capture_root)
     truth_mesh = load_mesh(capture.path(capture.ground_truth["mesh"]))
     truth = [f.camera for f in capture.frames]
@@ -79,7 +82,8 @@ def recovery(capture_root: Path, *, rotation_deg: float = 1.0, translation_pct: 
     fit = CameraFit([f.name for f in capture.frames], [f.camera for f in capture.frames], centre)
     viewset = ViewSet(capture, size)
     material = FixedMaterial(truth_mesh)
-    settings = RenderSettings(spp=spp, max_depth=2, integrator="direct_projective", sppc=spp, sppp=4)
+    settings = RenderSettings(spp=spp, max_depth=max_depth, sppc=spp, sppp=4,
+                              integrator="direct_projective" if max_depth <= 2 else "prb_projective")
     points = truth_mesh.vertices
 
     def reproj(cams):
@@ -112,6 +116,9 @@ def add_arguments(parser) -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--newton", type=int, default=6,
                         help="Gauss-Newton steps on each frame's pose after the last refinement's sweeps (0: none)")
+    parser.add_argument("--max-depth", type=int, default=2,
+                        help="the refinement's path depth (2: direct light only; 0: the capture's own, as a "
+                             "run whose effects match the scene)")
     parser.add_argument("--intrinsics", action="store_true",
                         help="refine the shared focal length and principal point too (the perturbation is poses only)")
 
@@ -124,9 +131,11 @@ def run(args) -> int:
         capture.mkdir(parents=True, exist_ok=True)
         synthesize(SynthSpec(views=args.views, resolution=args.resolution, spp=64, albedo="pattern", held_out=0), capture,
                    lambda *a, **k: None)
+    spec = load_capture(capture).provenance.get("spec", {})
+    depth = args.max_depth or int(spec.get("max_depth", 2))
     out = recovery(capture, rotation_deg=args.rotation, translation_pct=args.translation, size=args.size,
                    sweeps=args.sweeps, rounds=args.rounds, seed=args.seed, intrinsics=args.intrinsics,
-                   newton=args.newton)
+                   newton=args.newton, max_depth=depth)
     rows = []
     for when in ("before", "after"):
         e = out[when]
@@ -147,7 +156,8 @@ def run(args) -> int:
         "cameras", title="Camera refinement",
         context=(f"built-in object, {args.views} views at {args.resolution} px, cameras perturbed by "
                  f"{args.rotation} deg and {args.translation} % of the distance, true mesh and material fixed; "
-                 f"{args.rounds} refinements of {args.sweeps} sweeps at {args.size} px, the last followed by "
+                 f"{args.rounds} refinements of {args.sweeps} sweeps at {args.size} px and path depth {depth} (the "
+                 f"capture's {spec.get('max_depth', '?')}), the last followed by "
                  f"{args.newton} Gauss-Newton steps per frame, intrinsics "
                  f"{'refined' if args.intrinsics else 'fixed'}; errors after a similarity alignment of the centres "
                  "(and, the mesh being fixed, without one)"),

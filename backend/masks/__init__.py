@@ -21,6 +21,13 @@ Pipeline, classical by default (no learned model):
    reprojected into every frame and compared with its mask (IoU). Frames that disagree, or
    whose region leaves the frame (the object is cut by the border), are dropped; a second
    GrabCut round seeded by the hull's projection sharpens the rest.
+4. **Outline** (:mod:`.outline`): each GrabCut mask's outline is moved onto the frame's own
+   edges (a GrabCut round on a 2-pixel band of the unblurred frame, then a colour guided
+   filter), leaning to foreground: the hull is cut by every pixel one mask misses.
+5. **Trim** (``auto.trim_outside``): a piece of a mask outside the other frames' hull (one of
+   them may disagree) that reaches more than 1.25 % of the frame's size beyond it (a shadow, a
+   patch of ground the colours did not separate) is cut. Shallower pieces stay, since the
+   hull's voxels miss thin parts too.
 
 Why this pipeline: the SfM that the cameras need anyway already separates the object from its
 surroundings in 3D (the points the orbit circles against the ground and the far background),

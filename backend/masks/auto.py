@@ -13,6 +13,7 @@ from .cameras import View, views_of
 from .consistency import Votes, iou, project_hull
 from .ground import ground_difference
 from .region import NO_OBJECT_FIX, Region, object_region
+from .outline import OutlineOptions, refine_outline
 from .segment import OnnxSegmenter, SeedOptions, grabcut, hull_polygon, mask_seeds, region_seeds
 
 
@@ -29,6 +30,8 @@ class MaskOptions:
     rounds: int = 2  # GrabCut rounds: the region's seeds, then the strict visual hull's projection
     strict_tolerance: int = 0  # views that may disagree with a voxel of the hull that seeds a round
     min_frames: int = 3
+    # the GrabCut masks' outlines moved onto the frames' edges after the last round (.outline); None: kept
+    outline: OutlineOptions | None = field(default_factory=OutlineOptions)
     # the ground's photo-consistency (.ground), with a ground plane: pixels differing less than
     # ``ground_below`` (0..255) from the neighbouring frames warped through the plane are sure
     # background; undecided ones (probable either way) differing more than ``object_above``
@@ -37,6 +40,13 @@ class MaskOptions:
     ground_below: float | None = None
     object_above: float | None = 12.0
     ground_neighbours: int = 2  # frames on each side, in capture order, warped onto a frame
+    # after the outline: a piece of a mask outside the projection (grown by ``trim_band`` px) of
+    # the other frames' hull (``trim_tolerance`` of them may disagree with a voxel) is cut when
+    # it reaches ``trim_depth`` (a share of the frame's longer side) beyond it; shallower pieces
+    # are mostly the hull's own coarseness (a thin part a voxel misses) and stay (None: no trim)
+    trim_tolerance: int | None = 1
+    trim_band: int = 2
+    trim_depth: float = 0.0125
 
 
 @dataclass
@@ -147,6 +157,18 @@ def make_masks(frames: dict[str, np.ndarray], sfm, options: MaskOptions | None =
                 _ground_seeds(labels, ground.get(v.name), options)
                 masks[v.name] = grabcut(frames[v.name], labels, options.seeds.iterations, fg_of[v.name],
                                         options.seeds.smooth)
+    if segmenter is None and options.outline is not None:
+        for v in views:
+            if v.name in masks:
+                masks[v.name] = refine_outline(frames[v.name], masks[v.name], options.outline, fg_of[v.name])
+    if options.trim_tolerance is not None and len(masks) > options.min_frames:
+        votes = _votes(views, masks, obj, options)
+        for v in views:
+            if v.name in masks:
+                others = votes.hull(tolerance=options.trim_tolerance, exclude=v.name)
+                if not others.empty:
+                    masks[v.name] = trim_outside(masks[v.name], project_hull(others, v), options.trim_band,
+                                                 options.trim_depth * max(v.width, v.height))
     for n in list(masks):
         if not masks[n].any():
             dropped[n] = "empty mask"
@@ -162,6 +184,24 @@ def make_masks(frames: dict[str, np.ndarray], sfm, options: MaskOptions | None =
     emit("masks", kept=len(masks), dropped=len(dropped), mean_iou_with_hull=report.summary()["mean_iou_with_hull"],
          method=report.method)
     return report
+
+
+def trim_outside(mask: np.ndarray, hull: np.ndarray, band: int, depth_px: float) -> np.ndarray:
+    """``mask`` less its connected pieces outside ``hull`` (a projection, grown by ``band`` px)
+    that reach ``depth_px`` or more beyond it (float32 0/1)."""
+    import cv2  # bpy must be imported before cv2 in one process
+
+    m = np.asarray(mask) > 0.5
+    kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * band + 1, 2 * band + 1))
+    outside = (m & ~(cv2.dilate((np.asarray(hull) > 0.5).astype(np.uint8), kernel) > 0)).astype(np.uint8)
+    n, pieces = cv2.connectedComponents(outside, connectivity=8)
+    if n > 1:
+        depth = cv2.distanceTransform(outside, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+        reach = np.zeros(n, np.float32)
+        np.maximum.at(reach, pieces.ravel(), depth.ravel())
+        deep = np.nonzero(reach >= depth_px)[0]
+        m &= ~np.isin(pieces, deep[deep > 0])
+    return m.astype(np.float32)
 
 
 def _votes(views: list[View], masks: dict[str, np.ndarray], obj: np.ndarray, options: MaskOptions) -> Votes:

@@ -88,10 +88,16 @@ class Budget:
     def out_of_iterations(self) -> bool:
         return bool(self.config.iterations and self.state.iteration >= self.config.iterations)
 
+    def seconds_left(self) -> float | None:
+        """Seconds until the time budget's end, the results' share held back (``finish_s``);
+        None without a time budget."""
+        budget = self.config.time_budget_s
+        return max(0.0, budget - self.elapsed() - self.finish_s()) if budget else None
+
     def fits(self, seconds: float) -> bool:
         """Whether work of ``seconds`` still ends within the time budget."""
-        budget = self.config.time_budget_s
-        return not (budget and self.elapsed() + seconds + self.finish_s() > budget)
+        left = self.seconds_left()
+        return left is None or seconds <= left
 
     def geometry_reserve(self) -> float:
         """The share the geometry levels leave to the material stages on the final geometry

@@ -163,14 +163,18 @@ class CameraFit:
     # -- refinement --------------------------------------------------------------------------------
     def refine(self, mesh, material, views: list[View], settings, environment, *, sweeps: int = SWEEPS,
                seed: int = 0, tone: str = "log", intrinsics: bool = True, newton: int = 0, check_stop=None,
-               objective_factory=Objective) -> dict:
+               objective_factory=Objective, deadline: float | None = None) -> dict:
         """One refinement of every frame's pose and the intrinsics against ``views`` (the
         capture's frames in order, at one size; their targets as the fit sees them) with
         ``mesh`` and ``material`` frozen (see the module). Updates ``correction``; returns this
         refinement's summary (losses before and after, frames taken back). ``newton`` > 0
         follows the sweeps with that many Gauss-Newton steps on each frame's pose
-        (``camera_newton``; the intrinsics held)."""
+        (``camera_newton``; the intrinsics held). ``deadline`` (a ``time.perf_counter()``
+        reading; None: none): the sweeps after the first stop once half the time to it is spent
+        (all of it without Gauss-Newton steps), and the steps stop at frames not yet begun once
+        it is near; the final loss evaluation, which costs about the first's, is held back from it."""
         n = len(views)
+        began = time.perf_counter()
         base = [dataclasses.replace(v, camera=scaled_camera(self.start[i], v.camera.width, v.camera.height))
                 for i, v in enumerate(views)]
         objective = objective_factory(mesh, material, base, settings, environment, tone=tone)
@@ -209,7 +213,14 @@ class CameraFit:
 
         start_loss = np.array([loss_of(i, k) for i in range(n)])
         l0 = np.maximum(start_loss, 1e-12)
+        evaluation = time.perf_counter() - began
+        end_by = None if deadline is None else deadline - evaluation
+        sweeps_by = None if end_by is None else (began + 0.5 * (end_by - began) if newton > 0 else end_by)
+        sweeps_run = newton_frames = 0
         for sweep in range(sweeps):
+            if sweep and sweeps_by is not None and time.perf_counter() > sweeps_by:
+                break
+            sweeps_run += 1
             decay = 1.0 - 0.9 * sweep / max(sweeps - 1, 1)
             g_sigma, g_a = 0.0, np.zeros(2)
             for i in range(n):
@@ -240,8 +251,11 @@ class CameraFit:
             k.clamp()
         newton_start = time.perf_counter()
         for i in range(n if newton > 0 else 0):
+            if end_by is not None and time.perf_counter() > end_by:
+                break
             self._newton(i, k, newton, objective, base[i].camera, place, points, float(l0[i]), settings.spp, seed,
                          check_stop)
+            newton_frames += 1
         newton_seconds = time.perf_counter() - newton_start
         end_loss = np.array([loss_of(i, k) if k.finite() else np.nan for i in range(n)])
         worse = ~np.isfinite(end_loss) | (end_loss > start_loss * WORSE)
@@ -256,8 +270,9 @@ class CameraFit:
             renderer.lights[i] = lights[i]
         self.refinements += 1
         self.reverted += int(worse.sum())
-        record = {"size": int(max(base[0].camera.width, base[0].camera.height)), "sweeps": sweeps,
-                  "newton": int(newton), "newton_seconds": round(newton_seconds, 2),
+        record = {"size": int(max(base[0].camera.width, base[0].camera.height)), "sweeps": sweeps_run,
+                  "newton": int(newton), "newton_frames": newton_frames, "newton_seconds": round(newton_seconds, 2),
+                  "seconds": round(time.perf_counter() - began, 2),
                   "loss_start": float(start_loss.mean()), "loss_end": float(end_loss.mean()),
                   "frames_kept_back": int(worse.sum()), "diverged": self.diverged}
         self.history.append(record)
@@ -385,18 +400,39 @@ class CameraRefinement:
         one that does nothing."""
         return cls(capture, config, viewset) if enabled(config.refine_cameras, capture) else Unrefined(config)
 
+    # A refinement lowering the mean loss by less than this share leaves the cameras settled: the
+    # later levels do not refine again (one at twice the size costs about four times as much).
+    SETTLED_GAIN = 0.003
+    # The most of the time left (to the budget's end, results excluded) one refinement may take.
+    TIME_SHARE = 0.25
+
     def due(self, level: int) -> bool:
         return level >= self.FIRST_LEVEL
 
+    def settled(self) -> bool:
+        """Whether the last refinement gained less than ``SETTLED_GAIN`` of its starting loss."""
+        if not self.fit.history:
+            return False
+        last = self.fit.history[-1]
+        start, end = float(last["loss_start"]), float(last["loss_end"])
+        return not last["diverged"] and start > 0 and (start - end) / start < self.SETTLED_GAIN
+
+    def deadline(self, budget) -> float | None:
+        """The ``time.perf_counter()`` reading by which a refinement starting now ends: ``TIME_SHARE``
+        of the time the budget has left (None without a time budget)."""
+        left = budget.seconds_left()
+        return None if left is None else time.perf_counter() + self.TIME_SHARE * left
+
     def after_level(self, state, material, views, settings, environment, budget, emit, check_stop) -> None:
         """After a level (``state``: the run's RunState): one refinement against ``views`` (the
-        level's) with the level's geometry ``settings`` and ``environment``, when due and the
-        budget allows; the cameras are then set everywhere and a ``cameras`` event sent."""
-        if not self.due(state.level) or budget.out(budget.geometry_reserve()):
+        level's) with the level's geometry ``settings`` and ``environment``, when due, the
+        cameras are not settled (``settled``) and the budget allows, within ``deadline``; the
+        cameras are then set everywhere and a ``cameras`` event sent."""
+        if not self.due(state.level) or self.settled() or budget.out(budget.geometry_reserve()):
             return
         start = time.perf_counter()
         record = self.fit.refine(state.mesh, material, views, settings, environment, sweeps=self.config.camera_sweeps,
-                                 newton=self.config.camera_newton,
+                                 newton=self.config.camera_newton, deadline=self.deadline(budget),
                                  seed=self.config.seed + state.level, tone=self.config.tone, check_stop=check_stop)
         self.apply()
         state.timed("cameras", start)
@@ -424,6 +460,9 @@ class CameraRefinement:
             return {"refined": False, "mode": self.config.refine_cameras,
                     "note": "no refinement ran (it begins after the second geometry level)"}
         out = self.fit.report(mesh.vertices, held_out)
+        if self.settled():
+            out["settled"] = (f"the last refinement lowered the loss by less than {100 * self.SETTLED_GAIN:g} %: "
+                              "later levels did not refine again")
         try:
             fsio.write_json(folder / FILENAME, self.fit.cameras_json())
         except ValueError:

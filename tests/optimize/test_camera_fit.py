@@ -126,3 +126,39 @@ def test_reconstruct_refines_cameras_when_on_and_not_on_a_rendered_capture(tiny_
     assert _cameras(tiny_capture) == before  # the capture itself is never rewritten
     events = [json.loads(line) for line in (tmp_path / "on" / "events.jsonl").read_text().splitlines()]
     assert any(e.get("event") == "cameras" for e in events)
+
+
+def test_a_refinement_keeps_to_its_deadline_and_a_small_gain_settles_the_cameras(tiny_capture):
+    """A deadline already past: one sweep, no Gauss-Newton frame, the loss still measured after.
+    A refinement gaining less than ``SETTLED_GAIN`` settles the cameras: the next level does
+    not refine again; a larger gain or a diverged one does not."""
+    import time
+
+    from backend.bench.cameras import FixedMaterial
+    from backend.geometry.mesh import load_mesh
+    from backend.optimize.views import ViewSet
+    from backend.render.scene import RenderSettings
+
+    capture = load_capture(tiny_capture)
+    mesh = load_mesh(capture.path(capture.ground_truth["mesh"]))
+    viewset = ViewSet(capture, 32)
+    config = SimpleNamespace(refine_cameras="on", camera_sweeps=4, camera_newton=2, seed=0, tone="log",
+                             time_budget_s=None)
+    refinement = cf.CameraRefinement(capture, config, viewset)
+    settings = RenderSettings(spp=4, max_depth=2, integrator="direct_projective", sppc=4, sppp=4)
+    record = refinement.fit.refine(mesh, FixedMaterial(mesh), viewset.at(32), settings, capture.environment,
+                                   sweeps=4, newton=2, deadline=time.perf_counter())
+    assert record["sweeps"] == 1 and record["newton_frames"] == 0 and record["seconds"] > 0, record
+    assert np.isfinite(record["loss_end"]) and record["loss_end"] <= record["loss_start"] * cf.WORSE, record
+    gain = (record["loss_start"] - record["loss_end"]) / record["loss_start"]
+    assert refinement.settled() == (not record["diverged"] and gain < refinement.SETTLED_GAIN)
+    refinement.fit.history[-1].update(loss_start=1.0, loss_end=0.999, diverged=False)  # a 0.1 % gain
+    assert refinement.settled()
+    state = SimpleNamespace(level=2)
+    refinement.after_level(state, None, [], settings, None, None, None, None)  # returns before refining
+    assert refinement.fit.refinements == 1
+    refinement.fit.history[-1].update(loss_end=0.9)
+    assert not refinement.settled()
+    refinement.fit.history[-1].update(loss_end=1.0, diverged=True)
+    assert not refinement.settled()
+    assert refinement.deadline(SimpleNamespace(seconds_left=lambda: None)) is None  # no time budget: no deadline
