@@ -10,12 +10,11 @@ import shutil
 from pathlib import Path
 
 import numpy as np
-from PIL import Image
 
 from .. import fsio
 from ..errors import require
 from .format import FILENAME, save_capture
-from .images import read_mask, read_rgba, srgb_to_linear, write_image, write_mask
+from .images import area_resize, read_mask, read_rgba, srgb_to_linear, write_image, write_mask
 from .importers import import_any
 from .load import load_capture
 from .model import Capture, Environment, Frame
@@ -78,13 +77,15 @@ def convert(capture: Capture, folder: Path, max_size: int | None) -> Capture:
 
 
 def _resize(image: np.ndarray, width: int, height: int, nearest: bool = False) -> np.ndarray:
+    """Area averaging (``area_resize``); ``nearest``: the input pixel under each output
+    pixel's centre (labels)."""
     if image.shape[:2] == (height, width):
         return image
-    channels = image[..., None] if image.ndim == 2 else image
-    filt = Image.NEAREST if nearest else Image.BOX
-    out = np.stack([np.asarray(Image.fromarray(np.ascontiguousarray(channels[..., c], np.float32))
-                               .resize((width, height), filt)) for c in range(channels.shape[-1])], -1)
-    return out[..., 0] if image.ndim == 2 else out
+    if not nearest:
+        return area_resize(image, width, height)
+    rows = np.minimum(((np.arange(height) + 0.5) * image.shape[0] / height).astype(int), image.shape[0] - 1)
+    cols = np.minimum(((np.arange(width) + 0.5) * image.shape[1] / width).astype(int), image.shape[1] - 1)
+    return np.asarray(image, np.float32)[rows][:, cols]
 
 
 def _convert_frame(frame: Frame, folder: Path, max_size: int | None) -> tuple[Frame, bool]:

@@ -93,6 +93,37 @@ def read_mask(path: str | Path) -> np.ndarray:
     return np.clip(m, 0.0, 1.0).astype(np.float32)
 
 
+def area_resize(image: np.ndarray, width: int, height: int) -> np.ndarray:
+    """``image`` (H, W) or (H, W, C) resampled to ``width`` x ``height`` by exact area
+    averaging: output pixel (j, k) is the mean of the input over the rectangle it covers,
+    [j W / width, (j + 1) W / width) x [k H / height, (k + 1) H / height), pixels read as
+    constant over their unit squares (float32).
+
+    This keeps the pixel-edge convention of ``Camera.scaled`` (c' = c s) at every factor.
+    A filter that weighs whole input pixels by their centres (PIL's box filter) shifts the
+    image by up to a quarter of an input pixel at a non-integer factor (1.5, 2.5) and widens
+    every other output pixel, which the fit would read as a camera or surface error."""
+    a = np.asarray(image, np.float32)
+    if a.shape[:2] == (height, width):
+        return a
+    return _area_axis(_area_axis(a, height, 0), width, 1)
+
+
+def _area_axis(a: np.ndarray, n: int, axis: int) -> np.ndarray:
+    """``a`` averaged to ``n`` samples along ``axis`` (``area_resize``): differences of the
+    running integral F(x) = sum_{i < floor x} a_i + frac(x) a_floor(x) at the n + 1 edges."""
+    a = np.moveaxis(a, axis, 0)
+    m = a.shape[0]
+    if m == n:
+        return np.moveaxis(a, 0, axis)
+    total = np.concatenate([np.zeros((1,) + a.shape[1:]), np.cumsum(a, 0, dtype=np.float64)])
+    edges = np.linspace(0.0, m, n + 1)
+    i = np.minimum(edges.astype(int), m - 1)
+    frac = (edges - i).reshape((-1,) + (1,) * (a.ndim - 1))
+    integral = total[i] + frac * a[i]
+    return np.moveaxis(((integral[1:] - integral[:-1]) * (n / m)).astype(np.float32), 0, axis)
+
+
 def image_size(path: str | Path) -> tuple[int, int]:
     """(width, height) of an image without decoding its pixels where possible."""
     path = Path(path)

@@ -20,9 +20,8 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-from PIL import Image
 
-from ..capture.images import read_linear_rgb, read_mask, write_image
+from ..capture.images import area_resize, read_linear_rgb, read_mask, write_image
 from ..capture.model import Capture, Environment
 from .base import LightingFit, LightingModel
 from .convention import ALBEDO_CONVENTION, describe, normalise_albedo
@@ -55,14 +54,6 @@ def texel_of(d: np.ndarray, width: int, height: int) -> tuple[np.ndarray, np.nda
     return np.minimum((v * height).astype(int), height - 1), np.minimum((u * width).astype(int), width - 1)
 
 
-def _small(a: np.ndarray, w: int, h: int) -> np.ndarray:
-    """An image (H, W) or (H, W, C) box-filtered to ``w`` x ``h``."""
-    chans = a[..., None] if a.ndim == 2 else a
-    out = np.stack([np.asarray(Image.fromarray(np.ascontiguousarray(chans[..., c], np.float32), "F")
-                               .resize((w, h), Image.BOX)) for c in range(chans.shape[-1])], -1)
-    return out[..., 0] if a.ndim == 2 else out
-
-
 def background_samples(capture: Capture, size: int = INIT_SIZE):
     """World directions and radiance of the background pixels (outside the masks) of frames that
     show a background, and the mean radiance of the object pixels: (dirs (N, 3), rgb (N, 3),
@@ -72,8 +63,8 @@ def background_samples(capture: Capture, size: int = INIT_SIZE):
         cam = frame.camera
         f = min(1.0, size / max(cam.width, cam.height))
         w, h = max(1, round(cam.width * f)), max(1, round(cam.height * f))
-        image = _small(capture.camera_response.radiance(read_linear_rgb(frame.image)), w, h)
-        mask = _small(read_mask(frame.mask), w, h) if frame.mask else None
+        image = area_resize(capture.camera_response.radiance(read_linear_rgb(frame.image)), w, h)
+        mask = area_resize(read_mask(frame.mask), w, h) if frame.mask else None
         if mask is None:
             continue
         obj = mask > 0.5

@@ -85,6 +85,15 @@ SIGMA_PP = 1.0  # principal point offset, pixels of the level's images
 STEP_PX = 0.25  # Adam's largest first step, in pixels of the level's images
 SWEEPS = 6  # sweeps over every view in one refinement
 WORSE = 1.0  # a frame whose end loss exceeds its start loss x this takes its correction back
+# Gauss-Newton steps go through the frames interleaved (every NEWTON_STRIDE-th first, so any
+# prefix spans the orbit). Once NEWTON_PROBE frames have had them, their net gain (the
+# refinement's own loss, its seed rather than the steps' samples, which the steps partly fit,
+# after their steps against its start) decides: under NEWTON_GAIN on average the rest are left,
+# since they would mostly take their corrections back. A capture whose cameras were already
+# solved to a fraction of a pixel spends the time on geometry instead.
+NEWTON_STRIDE = 8
+NEWTON_PROBE = 8
+NEWTON_GAIN = 0.003
 FILENAME = "cameras.json"
 FORMAT = "shape-from-tracing-cameras"
 
@@ -169,7 +178,8 @@ class CameraFit:
         ``mesh`` and ``material`` frozen (see the module). Updates ``correction``; returns this
         refinement's summary (losses before and after, frames taken back). ``newton`` > 0
         follows the sweeps with that many Gauss-Newton steps on each frame's pose
-        (``camera_newton``; the intrinsics held). ``deadline`` (a ``time.perf_counter()``
+        (``camera_newton``; the intrinsics held), in ``newton_order`` and only while they pay
+        (``NEWTON_GAIN``, see there). ``deadline`` (a ``time.perf_counter()``
         reading; None: none): the sweeps after the first stop once half the time to it is spent
         (all of it without Gauss-Newton steps), and the steps stop at frames not yet begun once
         it is near; the final loss evaluation, which costs about the first's, is held back from it."""
@@ -250,11 +260,19 @@ class CameraFit:
                 k.principal = k.principal + adam_p.step(g_a, lr_pose * decay)
             k.clamp()
         newton_start = time.perf_counter()
-        for i in range(n if newton > 0 else 0):
+        gains, newton_stopped = [], None
+        for i in (newton_order(n) if newton > 0 else []):
             if end_by is not None and time.perf_counter() > end_by:
+                newton_stopped = "deadline"
+                break
+            probing = len(gains) < NEWTON_PROBE
+            if not probing and float(np.mean(gains)) < NEWTON_GAIN:
+                newton_stopped = "gain"
                 break
             self._newton(i, k, newton, objective, base[i].camera, place, points, float(l0[i]), settings.spp, seed,
                          check_stop)
+            if probing:
+                gains.append(float(1.0 - loss_of(i, k) / l0[i]))
             newton_frames += 1
         newton_seconds = time.perf_counter() - newton_start
         end_loss = np.array([loss_of(i, k) if k.finite() else np.nan for i in range(n)])
@@ -272,6 +290,7 @@ class CameraFit:
         self.reverted += int(worse.sum())
         record = {"size": int(max(base[0].camera.width, base[0].camera.height)), "sweeps": sweeps_run,
                   "newton": int(newton), "newton_frames": newton_frames, "newton_seconds": round(newton_seconds, 2),
+                  "newton_gain": round(float(np.mean(gains)), 6) if gains else None, "newton_stopped": newton_stopped,
                   "seconds": round(time.perf_counter() - began, 2),
                   "loss_start": float(start_loss.mean()), "loss_end": float(end_loss.mean()),
                   "frames_kept_back": int(worse.sum()), "diverged": self.diverged}
@@ -374,6 +393,13 @@ class CameraFit:
             out["held_out"] = ("kept as given: refining a held-out view's pose would fit its pixels "
                                "(the shared intrinsics are not applied to them either)")
         return out
+
+
+def newton_order(n: int) -> list[int]:
+    """Frames 0..n-1 interleaved by ``NEWTON_STRIDE`` (0, 8, 16, ..., 1, 9, ...): any prefix of
+    the order spans the capture, so the frames a deadline or the gain rule leaves out are
+    spread over it rather than its end."""
+    return [i for r in range(NEWTON_STRIDE) for i in range(r, n, NEWTON_STRIDE)]
 
 
 class CameraRefinement:

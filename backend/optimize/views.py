@@ -6,9 +6,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from PIL import Image
 
-from ..capture.images import read_linear_rgb, read_mask
+from ..capture.images import area_resize, read_linear_rgb, read_mask
 from ..capture.model import Camera, Capture, PointLight
 from ..errors import require
 
@@ -22,16 +21,6 @@ class View:
     target: np.ndarray  # (H, W, 3) linear, mask x image
     mask: np.ndarray | None  # (H, W) in [0, 1]
     lights: list[PointLight]
-
-
-def _resize(a: np.ndarray, w: int, h: int) -> np.ndarray:
-    """Area-average resampling of float arrays (H, W) or (H, W, C)."""
-    if a.shape[1] == w and a.shape[0] == h:
-        return a
-    chans = a[..., None] if a.ndim == 2 else a
-    out = np.stack([np.asarray(Image.fromarray(np.ascontiguousarray(chans[..., c], np.float32), "F")
-                               .resize((w, h), Image.BOX)) for c in range(chans.shape[-1])], -1)
-    return out[..., 0] if a.ndim == 2 else out
 
 
 def scaled_camera(camera: Camera, w: int, h: int) -> Camera:
@@ -74,8 +63,8 @@ class ViewSet:
                 else:
                     image = image * mask[..., None]
             w, h = frame_size(frame.camera, max_size)
-            self.views.append(View(frame.name, scaled_camera(frame.camera, w, h), _resize(image, w, h),
-                                   None if mask is None else _resize(mask, w, h), frame.lights))
+            self.views.append(View(frame.name, scaled_camera(frame.camera, w, h), area_resize(image, w, h),
+                                   None if mask is None else area_resize(mask, w, h), frame.lights))
 
     def __len__(self) -> int:
         return len(self.views)
@@ -86,11 +75,11 @@ class ViewSet:
         out = []
         for i, v in enumerate(self.views):
             w, h = frame_size(v.camera, long_side)
-            target = _resize(v.target, w, h)
+            target = area_resize(v.target, w, h)
             if self.exposure is not None and not recorded:
                 target = self.exposure.correct(i, target)
             out.append(View(v.name, scaled_camera(v.camera, w, h), target,
-                            None if v.mask is None else _resize(v.mask, w, h), v.lights))
+                            None if v.mask is None else area_resize(v.mask, w, h), v.lights))
         return out
 
     @property

@@ -6,7 +6,7 @@ import numpy as np
 import OpenEXR
 import pytest
 
-from backend.capture.images import image_size, read_linear_rgb, read_rgba, write_image
+from backend.capture.images import area_resize, image_size, read_linear_rgb, read_rgba, write_image
 from backend.errors import InputError
 
 
@@ -47,3 +47,21 @@ def test_unreadable_linear_image_is_an_input_error(tmp_path, name):
     (tmp_path / name).write_bytes(b"not an image")
     with pytest.raises(InputError, match="cannot read"):
         read_rgba(tmp_path / name)
+
+
+@pytest.mark.parametrize("size, out", [((48, 36), (32, 24)), ((40, 30), (16, 12)), ((30, 20), (45, 30))])
+def test_area_resize_is_the_mean_over_each_output_pixel_s_rectangle(size, out):
+    """Against an exact reference: every input pixel repeated k times (k making each output
+    pixel a whole block), then block means. At 1.5x and 2.5x a filter weighing whole pixels by
+    their centres is a quarter of an input pixel off; this is exact (and up-sampling too)."""
+    rng = np.random.default_rng(5)
+    (w, h), (ow, oh) = size, out
+    img = rng.random((h, w, 3)).astype(np.float32)
+    k = int(np.lcm(w, ow) // w)
+    fine = img.repeat(k, 0).repeat(k, 1)
+    by = fine.shape[0] // oh, fine.shape[1] // ow
+    reference = fine.reshape(oh, by[0], ow, by[1], 3).mean((1, 3))
+    got = area_resize(img, ow, oh)
+    assert got.shape == (oh, ow, 3) and got.dtype == np.float32
+    np.testing.assert_allclose(got, reference, atol=1e-5)
+    np.testing.assert_allclose(area_resize(img[..., 0], ow, oh), reference[..., 0], atol=1e-5)

@@ -162,3 +162,37 @@ def test_a_refinement_keeps_to_its_deadline_and_a_small_gain_settles_the_cameras
     refinement.fit.history[-1].update(loss_end=1.0, diverged=True)
     assert not refinement.settled()
     assert refinement.deadline(SimpleNamespace(seconds_left=lambda: None)) is None  # no time budget: no deadline
+
+
+def test_gauss_newton_steps_span_the_orbit_and_stop_where_they_gain_nothing(tiny_capture, monkeypatch):
+    """The steps visit the frames interleaved, so any prefix spans the capture. After the probe
+    frames, their net gain (the refinement's loss after their steps against its start) decides:
+    on the exact cameras it is small and the rest are left (``gain``); on cameras turned by a
+    degree it is large and every frame gets its steps. The bar here sits between the two (at
+    this 32-px size the exact cameras still gain a little from the resampled targets)."""
+    from backend.bench.cameras import FixedMaterial, perturb
+    from backend.geometry.mesh import load_mesh
+    from backend.optimize.views import ViewSet
+    from backend.render.scene import RenderSettings
+
+    order = cf.newton_order(20)
+    assert sorted(order) == list(range(20)) and order[:3] == [0, 8, 16] and max(order[:4]) - min(order[:4]) >= 15
+    monkeypatch.setattr(cf, "NEWTON_PROBE", 2)
+    monkeypatch.setattr(cf, "NEWTON_GAIN", 0.1)
+    settings = RenderSettings(spp=4, max_depth=2, integrator="direct_projective", sppc=4, sppp=4)
+    records = {}
+    for turned in (0.0, 1.0):
+        capture = load_capture(tiny_capture)
+        mesh = load_mesh(capture.path(capture.ground_truth["mesh"]))
+        lo, hi = mesh.bounds()
+        cams = perturb([f.camera for f in capture.frames], 0.5 * (lo + hi), turned, turned, seed=4)
+        for frame, cam in zip(capture.frames, cams):
+            frame.camera = cam
+        fit = cf.CameraFit([f.name for f in capture.frames], cams, 0.5 * (lo + hi))
+        records[turned] = fit.refine(mesh, FixedMaterial(mesh), ViewSet(capture, 32).at(32), settings,
+                                     capture.environment, sweeps=0, newton=2, intrinsics=False)
+    n = len(load_capture(tiny_capture).frames)
+    exact, turned = records[0.0], records[1.0]
+    assert exact["newton_stopped"] == "gain" and exact["newton_frames"] == 2, exact
+    assert turned["newton_stopped"] is None and turned["newton_frames"] == n, turned
+    assert exact["newton_gain"] < cf.NEWTON_GAIN < turned["newton_gain"], records
