@@ -261,6 +261,7 @@ class CameraFit:
             k.clamp()
         newton_start = time.perf_counter()
         gains, newton_stopped = [], None
+        probed = {}  # a probe frame's loss after its steps: its end loss (only its own pose moved since)
         for i in (newton_order(n) if newton > 0 else []):
             if end_by is not None and time.perf_counter() > end_by:
                 newton_stopped = "deadline"
@@ -272,10 +273,12 @@ class CameraFit:
             self._newton(i, k, newton, objective, base[i].camera, place, points, float(l0[i]), settings.spp, seed,
                          check_stop)
             if probing:
-                gains.append(float(1.0 - loss_of(i, k) / l0[i]))
+                probed[i] = loss_of(i, k)
+                gains.append(float(1.0 - probed[i] / l0[i]))
             newton_frames += 1
         newton_seconds = time.perf_counter() - newton_start
-        end_loss = np.array([loss_of(i, k) if k.finite() else np.nan for i in range(n)])
+        end_loss = np.array([(probed[i] if i in probed else loss_of(i, k)) if k.finite() else np.nan
+                             for i in range(n)])
         worse = ~np.isfinite(end_loss) | (end_loss > start_loss * WORSE)
         if not k.finite() or worse.all():
             self.correction, self.diverged = before, True
