@@ -40,10 +40,6 @@ DEFAULT_MATERIAL = "staged"
 MATERIAL_ALIASES = {"constant": "auto", "full": "staged"}
 SETTINGS_VARIABLE = "SFT_RECONSTRUCT_SETTINGS"
 PATH_OPTIONS = ("--out", "--masks", "--env", "--init")
-# a run with a shorter time budget measures no step costs (a capture's earlier runs may have
-# cached them): the measurement would take a tenth of a two-minute budget for an estimate of
-# the time left that the budget bounds anyway
-MEASURE_MIN_BUDGET_S = 600.0
 
 
 def choose_preset(args) -> str:
@@ -336,9 +332,11 @@ def _preset_event(args, emit, config, capture, folder):
     alone. A new run's planner, which ``reconstruct`` calls once its first level has ended
     (so that the first step comes without delay, with the effects the run decided),
     predicts this capture's time from its step costs (cached beside the capture by
-    ``step_costs.cached``; measured only without a time budget or with one of at least
-    ``MEASURE_MIN_BUDGET_S``), announces it in a second ``preset`` event and returns the
-    live estimate of the time left, caught up with the events so far. The held-out PSNR is
+    ``step_costs.cached``; measured only without a time budget: a budgeted run ends at its
+    budget whatever the plan says, and the measurement would take its time from the fit for
+    an estimate of the time left that changes no decision), announces it in a second
+    ``preset`` event and returns the live estimate of the time left, caught up with the
+    events so far. The held-out PSNR is
     predicted only with ``--track-accuracy`` (the probe decides nothing in the run: the Plan
     button and ``--plan`` probe)."""
     preset = choose_preset(args)
@@ -375,7 +373,7 @@ def _preset_event(args, emit, config, capture, folder):
         budget = config.time_budget_s
         plan = make_plan(capture, {preset: config}, settings, staged=config.material == "staged",
                          calibration=entries, viewset=viewset, material_settings=material_settings,
-                         initial=mesh, probe=probed, measure=budget is None or budget >= MEASURE_MIN_BUDGET_S)
+                         initial=mesh, probe=probed, measure=budget is None)
         if plan is None:
             return None
         event(plan)

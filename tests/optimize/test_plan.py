@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import json
+import shutil
 from pathlib import Path
 
 import pytest
@@ -95,6 +96,23 @@ def test_the_preset_event_carries_the_captures_prediction(capture, tmp_path):
     decided = next(e for e in events if e["event"] == "effects")["enabled"]
     timed = preset["plan"]["render_settings"]
     assert timed["max_depth"] == decided["max_depth"] and (timed["sppi"] > 0) == decided["shadows"]
+
+
+def test_a_budgeted_run_plans_only_from_cached_costs(capture, tmp_path):
+    """A time budget bounds the run whatever the plan says: it measures no step costs of its own."""
+    fresh = tmp_path / "capture"
+    shutil.copytree(capture, fresh, ignore=shutil.ignore_patterns(".sft-cache"))
+    run = tmp_path / "run"
+    proc = run_cli("reconstruct", fresh, "--out", run, "--preset", "draft", "--init", "sphere", "--time-budget", 20,
+                   "--iterations", 6, "--max-size", 16, "--coarse-size", 16, "--initial-faces", 320,
+                   "--material", "known:0.6,0.6,0.6:0.25:0.35", "--effects", "specular", timeout=300)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    events = [json.loads(line) for line in (run / "events.jsonl").read_text().splitlines()]
+    presets = [e for e in events if e["event"] == "preset"]
+    assert presets and not any(e.get("plan") for e in presets)
+    assert not (fresh / ".sft-cache" / "step_costs.json").exists()
+    report = json.loads((run / "report.json").read_text())
+    assert report["timings"].get("plan", 0.0) < 1.0
 
 
 def test_a_fitted_lighting_is_charged_its_cycles_on_the_initial_mesh():
