@@ -352,6 +352,7 @@ class Reconstruction:
         ``config.final_material_cycles`` cycles."""
         s, most = self.state, self.config.final_material_cycles
         views = self.viewset.at(self.config.max_size)
+        self.texture.size_reserve(s.mesh, self.material, self.appearance, self.budget)
         self.appearance.finalise(s.mesh, self.material, views, self.budget)
         last = 0.0  # seconds of the last cycle: one that would end past the budget is not begun
         for _ in range(most):

@@ -12,8 +12,14 @@ inside each mask outline left out. The stage is kept only when it lowers the los
 validation views at its size; otherwise the material goes back to what it was.
 
 Time: with a time budget the stage has ``budget.TEXTURE_RESERVE`` of it held back for it (the
-material stages and polish rounds end that much earlier; ``Budget.texture_share``); it times a
-few iterations and runs as many more as the time left allows, at most ``texture_iterations``.
+material stages and polish rounds end that much earlier; ``Budget.texture_share``). Once the
+geometry levels have ended (``size_reserve``) one render at the stage's size is timed and the
+share becomes what the stage is then expected to take, ``RESERVE_MARGIN`` x (its frames'
+loading, its scene and kernels, and (2 x validation views + ``RENDERS_PER_ITERATION`` x
+``texture_iterations``) renders and the iterations' host work),
+at most ``TEXTURE_RESERVE``: a fixed share held time the polish rounds could have fitted with
+on captures whose frames are small. The stage times a few iterations and runs as many more as
+the time left allows, at most ``texture_iterations``.
 
 ``--texture-stage auto`` (default) runs it when the capture's frames are larger than
 ``max_size``; ``on`` always (at the frames' size, even when that is the fit's); ``off`` never.
@@ -38,6 +44,9 @@ from .views import ViewSet, validation_views
 
 MODES = ("auto", "on", "off")
 PROBE_ITERATIONS = 3  # timed first, to size the rest of the stage to the time left
+RENDERS_PER_ITERATION = 3.0  # a fitted view (render, backward pass, update) in renders' time
+ITERATION_HOST_S = 0.05  # and its host work (the AD graph, the loss, Adam's update), seconds
+RESERVE_MARGIN = 1.25  # the reserve over the stage's expected time (``size_reserve``)
 MAX_SAMPLES = 1_000_000  # most mesh-color entries (sum of (r + 1)(r + 2) / 2 over the faces)
 
 
@@ -68,7 +77,8 @@ class TextureStage:
         else:
             self.enabled, reason = False, f"frames of {self.size} px are no larger than the fit's {config.max_size} px"
         self.record: dict = {"mode": mode, "enabled": self.enabled, "reason": reason, "size": self.size,
-                             "fit_size": config.max_size, "ran": False}
+                             "fit_size": config.max_size, "ran": False, "reserve": None}
+        self._views = None  # the frames at the stage's size, once ``size_reserve`` loaded them
 
     def report(self, levels) -> dict:
         """``report.json`` ``texture_stage``: the stage's record and ``sizes``, the image size
@@ -79,6 +89,41 @@ class TextureStage:
         """The share of a time budget held back for this stage (0 when it does not run)."""
         return TEXTURE_RESERVE if self.enabled else 0.0
 
+    def size_reserve(self, mesh, material, appearance, budget) -> None:
+        """Once the geometry levels have ended: ``budget.texture_share`` from one render at the
+        stage's size with the current ``mesh`` and ``material`` (see the module; at most the
+        initial ``TEXTURE_RESERVE``). The frames loaded for it are kept for ``run``. Without a
+        time budget, or when the stage does not run, nothing changes."""
+        budget_s = self.config.time_budget_s
+        if not self.enabled or not budget_s or self.record.get("reserve") is not None:
+            return
+        start = time.perf_counter()
+        self._views = ViewSet(self.capture, self.size).views
+        load_s = time.perf_counter() - start
+        views = [self._views[len(self._views) // 2]]
+        renderer = SceneRenderer(mesh, material.field, [v.camera for v in views], [v.lights for v in views],
+                                 lit_environment(self.capture, material), appearance.material_settings(self._base()))
+        t = time.perf_counter()
+        renderer.render_numpy(0, seed=7)  # compiles the render's kernels
+        first_s = time.perf_counter() - t
+        t = time.perf_counter()
+        renderer.render_numpy(0, seed=8)
+        render_s = time.perf_counter() - t
+        iterations = int(getattr(self.config, "texture_iterations", 60))
+        renders = 2 * len(validation_views(len(self._views), self.config.validation_views)) \
+            + RENDERS_PER_ITERATION * iterations
+        # the stage builds its own scene and compiles a render and a fit (forward and backward
+        # kernels): the first render's compilation RENDERS_PER_ITERATION times over
+        setup_s = t - start - load_s - first_s + RENDERS_PER_ITERATION * max(first_s - render_s, 0.0)
+        expected = load_s + setup_s + renders * render_s + iterations * ITERATION_HOST_S
+        share = min(budget.texture_share, RESERVE_MARGIN * expected / budget_s)
+        budget.texture_share = share
+        self.record["reserve"] = {"share": round(share, 4), "expected_s": round(expected, 2),
+                                  "render_s": round(render_s, 4), "seconds": round(time.perf_counter() - start, 3)}
+
+    def _base(self) -> RenderSettings:
+        return RenderSettings(spp=self.config.spp, max_depth=self.config.max_depth, integrator="prb")
+
     def run(self, mesh, material, appearance, budget, emit, level: int = 0) -> dict:
         """Fit ``material`` on ``mesh`` at the stage's image size, in place, within ``budget``
         (the run's Budget; the share held back for the stage is released here). Returns the
@@ -88,7 +133,8 @@ class TextureStage:
             return self.record
         start = time.perf_counter()
         emit("stage", stage="texture", level=level, faces=mesh.n_faces)
-        views = ViewSet(self.capture, self.size).views
+        views = self._views or ViewSet(self.capture, self.size).views
+        self._views = None
         footprint = face_footprints(mesh, [v.camera for v in views])
         resolutions = footprint_resolutions(footprint, max_samples=MAX_SAMPLES)
         saved = _save(material)
@@ -96,9 +142,8 @@ class TextureStage:
         material.set_resolution(resolutions)
         names = [n for n in ("albedo", "specular", "roughness")
                  if material.channels[n].kind == "colors" and n in material.trainable]
-        base = RenderSettings(spp=self.config.spp, max_depth=self.config.max_depth, integrator="prb")
         renderer = SceneRenderer(mesh, material.field, [v.camera for v in views], [v.lights for v in views],
-                                 lit_environment(self.capture, material), appearance.material_settings(base))
+                                 lit_environment(self.capture, material), appearance.material_settings(self._base()))
         images = [v.target for v in views]
         masks = [v.mask for v in views] if all(v.mask is not None for v in views) else None
         settings = appearance.driver.settings if appearance.driver is not None else FitSettings()

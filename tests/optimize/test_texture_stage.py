@@ -27,7 +27,7 @@ from backend.material.model import MeshColorMaterial  # noqa: E402
 from backend.material.stages import FitSettings, fit  # noqa: E402
 from backend.metrics.image import psnr  # noqa: E402
 from backend.optimize.appearance import Appearance  # noqa: E402
-from backend.optimize.budget import Budget  # noqa: E402
+from backend.optimize.budget import TEXTURE_RESERVE, Budget  # noqa: E402
 from backend.optimize.config import ReconstructConfig  # noqa: E402
 from backend.optimize.records import RunState  # noqa: E402
 from backend.optimize.texture_stage import TextureStage  # noqa: E402
@@ -119,6 +119,30 @@ def test_the_texture_stage_raises_the_fitted_views_psnr(tmp_path):
     assert record["loss_after"] < record["loss_before"]
     assert after > before + 1.0, (before, after)
     assert [n for n, _ in events if n in ("stage", "texture")] == ["stage", "texture"]
+
+
+def test_the_stage_reserve_is_sized_by_a_timed_render(tmp_path):
+    """With a time budget, the share held for the stage becomes its expected time once the
+    levels end (one render timed at its size), not the fixed TEXTURE_RESERVE."""
+    capture = sphere_capture(tmp_path / "capture")
+    config = ReconstructConfig(material="staged", max_size=FIT_SIZE, spp=8, max_depth=2, texture_iterations=30,
+                               time_budget_s=600.0)
+    mesh = icosphere(2, RADIUS)
+    material = MeshColorMaterial(mesh, 2)
+    stage = TextureStage(capture, config, staged=True)
+    budget = Budget(config, RunState(), staged=True)
+    budget.texture_share = stage.reserve_share()
+    appearance = Appearance(capture, config, lambda *a, **k: None)
+    stage.size_reserve(mesh, material, appearance, budget)
+    reserve = stage.record["reserve"]
+    assert 0.0 < budget.texture_share < TEXTURE_RESERVE and reserve["share"] == round(budget.texture_share, 4)
+    assert reserve["render_s"] > 0 and budget.texture_share * 600.0 >= reserve["expected_s"]
+    stage.size_reserve(mesh, material, appearance, budget)  # once per run: the first sizing stays
+    assert stage.record["reserve"] is reserve
+    record = stage.run(mesh, material, appearance, budget, lambda *a, **k: None)
+    assert record["iterations"] == 30 and budget.texture_share == 0.0
+    # the timed render predicts the stage: what it took is within a factor of two of the estimate
+    assert 0.5 * reserve["expected_s"] <= record["seconds"] <= 2.0 * reserve["expected_s"], (record, reserve)
 
 
 def test_auto_runs_the_stage_only_for_frames_larger_than_the_fit(tmp_path):
