@@ -72,7 +72,8 @@ HELP = ("refine each frame's pose and the shared focal length and principal poin
         "alternating with the geometry levels from the second on (a prior holds them near the given cameras; "
         "RUN/cameras.json and report.json cameras_refined): 'auto' (the default) for captures made from a video "
         "or photos and imported real datasets (SfM cameras are off by about a pixel), not for rendered "
-        "captures (exact cameras); 'on' always; 'off' never")
+        "captures (exact cameras) nor for solves whose reprojection error is under 0.25 px at the fit's size; "
+        "'on' always; 'off' never")
 # capture.json provenance.source of the captures ``auto`` refines: capture-from-video's and the
 # importers of real datasets (COLMAP, IDR/DTU, Middlebury, AliceVision); NeRF's transforms.json
 # and rendered captures carry exact cameras
@@ -94,19 +95,39 @@ WORSE = 1.0  # a frame whose end loss exceeds its start loss x this takes its co
 NEWTON_STRIDE = 8
 NEWTON_PROBE = 8
 NEWTON_GAIN = 0.003
+MEASURABLE_PX = 0.25  # a solve's reprojection error at the fit's largest size that ``auto`` refines
 FILENAME = "cameras.json"
 FORMAT = "shape-from-tracing-cameras"
 
 
-def enabled(mode: str, capture) -> bool:
+def enabled(mode: str, capture, max_size: int | None = None) -> bool:
     """Whether ``--refine-cameras mode`` refines ``capture``'s cameras: ``auto`` by what
     capture.json says of its source (``AUTO_SOURCES``): solved or measured cameras are off by
-    about a pixel, rendered ones are exact."""
+    about a pixel, rendered ones are exact; and not when the capture's own solve says they are
+    already finer than the fit can see (``unmeasurable``, with the fit's ``max_size``)."""
     if mode not in MODES:
         raise ValueError(f"unknown camera refinement mode {mode!r}")
     if mode != "auto":
         return mode == "on"
-    return (capture.provenance or {}).get("source") in AUTO_SOURCES
+    return (capture.provenance or {}).get("source") in AUTO_SOURCES and unmeasurable(capture, max_size) is None
+
+
+def unmeasurable(capture, max_size: int | None) -> str | None:
+    """Why ``auto`` leaves a solved capture's cameras alone, or None: the solve's mean
+    reprojection error (capture.json ``provenance.sfm``, in the frames' pixels) scaled to the
+    fit's largest images (``max_size``) is under ``MEASURABLE_PX``. A misregistration that small
+    moves the renders less than their noise: the refinement's steps are taken back and it
+    settles at once, after costing the time of a level."""
+    sfm = (capture.provenance or {}).get("sfm") or {}
+    error = sfm.get("reprojection_error_px")
+    if max_size is None or error is None or not capture.frames:
+        return None
+    native = max(max(f.camera.width, f.camera.height) for f in capture.frames)
+    scaled = float(error) * min(1.0, max_size / native)
+    if not scaled < MEASURABLE_PX:
+        return None
+    return (f"the solve's {float(error):.2f} px reprojection error is {scaled:.2f} px at the fit's "
+            f"{min(max_size, native)} px, under the {MEASURABLE_PX:g} px the renders can measure")
 
 
 class _Adam:
@@ -427,7 +448,10 @@ class CameraRefinement:
     def start(cls, capture, config, viewset) -> "CameraRefinement | Unrefined":
         """The refinement ``config.refine_cameras`` asks for on ``capture`` (``enabled``), else
         one that does nothing."""
-        return cls(capture, config, viewset) if enabled(config.refine_cameras, capture) else Unrefined(config)
+        if enabled(config.refine_cameras, capture, getattr(config, "max_size", None)):
+            return cls(capture, config, viewset)
+        note = unmeasurable(capture, getattr(config, "max_size", None)) if config.refine_cameras == "auto" else None
+        return Unrefined(config, note)
 
     # A refinement lowering the mean loss by less than this share leaves the cameras settled: the
     # later levels do not refine again (one at twice the size costs about four times as much).
@@ -502,8 +526,8 @@ class CameraRefinement:
 class Unrefined:
     """The cameras of a run that does not refine them: as given (``CameraRefinement``'s methods)."""
 
-    def __init__(self, config):
-        self.mode = config.refine_cameras
+    def __init__(self, config, note: str | None = None):
+        self.mode, self.note = config.refine_cameras, note  # note: why ``auto`` left solved cameras alone
 
     def after_level(self, *args) -> None:
         pass
@@ -515,4 +539,4 @@ class Unrefined:
         pass
 
     def finish(self, folder, mesh, held_out: bool) -> dict:
-        return {"refined": False, "mode": self.mode}
+        return {"refined": False, "mode": self.mode, **({"note": self.note} if self.note else {})}

@@ -77,6 +77,20 @@ def test_auto_refines_solved_and_measured_cameras_not_rendered_ones():
         assert unrefined.finish(None, None, False) == {"refined": False, "mode": mode}
 
 
+def test_auto_leaves_a_solve_finer_than_the_fit_can_see():
+    frames = [SimpleNamespace(camera=SimpleNamespace(width=640, height=360))]
+    solved = SimpleNamespace(provenance={"source": "video", "sfm": {"reprojection_error_px": 0.51}}, frames=frames)
+    assert not cf.enabled("auto", solved, 256) and cf.enabled("on", solved, 256)
+    assert "0.20 px at the fit's 256 px" in cf.unmeasurable(solved, 256)
+    assert cf.enabled("auto", solved, 512) and cf.unmeasurable(solved, 512) is None  # 0.41 px there
+    assert cf.enabled("auto", solved)  # no fit size given: by the source alone
+    imported = SimpleNamespace(provenance={"source": "idr"}, frames=frames)  # no solve of its own
+    assert cf.enabled("auto", imported, 128)
+    unrefined = cf.CameraRefinement.start(solved, SimpleNamespace(refine_cameras="auto", max_size=256), None)
+    report = unrefined.finish(None, None, False)
+    assert report["refined"] is False and "reprojection error" in report["note"]
+
+
 def test_a_non_finite_refined_camera_is_never_written(tmp_path):
     cam = _camera(np.random.default_rng(2))
     refinement = cf.CameraRefinement.__new__(cf.CameraRefinement)
