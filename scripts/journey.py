@@ -65,6 +65,10 @@ def main(argv=None) -> int:
         if "FINISHED" not in result:
             raise SystemExit(f"{name} did not finish: {result}")
 
+    sys.path.insert(0, str(ROOT))
+    from backend.bench._machine import code_version
+
+    built_from = code_version()  # the zip is built from the tree as it is now: later commits are not in it
     scripts = Path(bpy.utils.system_resource("SCRIPTS"))
     dist = out / "dist"
     dist.mkdir(exist_ok=True)
@@ -108,7 +112,7 @@ def main(argv=None) -> int:
     step("Export glTF", lambda: bpy.ops.sft.export_gltf(filepath=str(out / "journey.glb")))
     figures = {"steps_s": steps, "total_min": round(sum(steps.values()) / 60, 2),
                "user_min": round(sum(v for k, v in steps.items() if k not in ("install zip", "Install Backend")) / 60, 2),
-               "frames": len(manifest["frames"]), "run": str(run),
+               "frames": len(manifest["frames"]), "run": str(run), "commit": built_from,
                "settings": {"quality": sft.preset, "time_budget": sft.time_budget, "material": sft.material,
                             "init": sft.init, "effects": sft.effects, "lighting": sft.lighting,
                             "masks": "imported" if args.masks else sft.masks_mode.lower()}}
@@ -135,7 +139,6 @@ SHOWN = ["try", "masks", "lighting", "Solve Cameras (min)", "Reconstruct (min)",
 def write_journey_record(args, figures: dict, argv) -> None:
     """One row of the ``journey`` record: each step's minutes, the run's lighting, its figures."""
     sys.path.insert(0, str(ROOT))
-    from backend.bench._machine import code_version
     from backend.bench._records import folder, write_record
 
     steps = figures["steps_s"]
@@ -144,7 +147,7 @@ def write_journey_record(args, figures: dict, argv) -> None:
            "lighting": figures["settings"]["lighting"],
            "time budget (min)": figures["settings"]["time_budget"],
            **{f"{k} (min)": round(v / 60, 2) for k, v in steps.items() if k not in ("install zip",)},
-           "user steps (min)": figures["user_min"], "commit": code_version()}
+           "user steps (min)": figures["user_min"], "commit": figures["commit"]}
     model = (report.get("lighting") or {}).get("model")
     if model:
         row["lighting model"] = model
