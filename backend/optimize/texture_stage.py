@@ -16,10 +16,10 @@ material stages and polish rounds end that much earlier; ``Budget.texture_share`
 geometry levels have ended (``size_reserve``) one render at the stage's size is timed and the
 share becomes what the stage is then expected to take, ``RESERVE_MARGIN`` x (its frames'
 loading, its scene and kernels, and (2 x validation views + ``RENDERS_PER_ITERATION`` x
-``texture_iterations``) renders and the iterations' host work),
-at most ``TEXTURE_RESERVE``: a fixed share held time the polish rounds could have fitted with
-on captures whose frames are small. The stage times a few iterations and runs as many more as
-the time left allows, at most ``texture_iterations``.
+``texture_iterations``) renders and the iterations' host work), at most ``TEXTURE_RESERVE``.
+A fixed share would hold back time the polish rounds could use wherever the stage needs less
+of it. The stage times a few iterations and runs as many more as the time left allows, at
+most ``texture_iterations``.
 
 ``--texture-stage auto`` (default) runs it when the capture's frames are larger than
 ``max_size``; ``on`` always (at the frames' size, even when that is the fit's); ``off`` never.
@@ -100,9 +100,7 @@ class TextureStage:
         start = time.perf_counter()
         self._views = ViewSet(self.capture, self.size).views
         load_s = time.perf_counter() - start
-        views = [self._views[len(self._views) // 2]]
-        renderer = SceneRenderer(mesh, material.field, [v.camera for v in views], [v.lights for v in views],
-                                 lit_environment(self.capture, material), appearance.material_settings(self._base()))
+        renderer = self._renderer(mesh, material, appearance, [self._views[len(self._views) // 2]])
         t = time.perf_counter()
         renderer.render_numpy(0, seed=7)  # compiles the render's kernels
         first_s = time.perf_counter() - t
@@ -121,8 +119,11 @@ class TextureStage:
         self.record["reserve"] = {"share": round(share, 4), "expected_s": round(expected, 2),
                                   "render_s": round(render_s, 4), "seconds": round(time.perf_counter() - start, 3)}
 
-    def _base(self) -> RenderSettings:
-        return RenderSettings(spp=self.config.spp, max_depth=self.config.max_depth, integrator="prb")
+    def _renderer(self, mesh, material, appearance, views) -> SceneRenderer:
+        """The stage's material render of ``views``: highlights included, the lighting as fitted."""
+        base = RenderSettings(spp=self.config.spp, max_depth=self.config.max_depth, integrator="prb")
+        return SceneRenderer(mesh, material.field, [v.camera for v in views], [v.lights for v in views],
+                             lit_environment(self.capture, material), appearance.material_settings(base))
 
     def run(self, mesh, material, appearance, budget, emit, level: int = 0) -> dict:
         """Fit ``material`` on ``mesh`` at the stage's image size, in place, within ``budget``
@@ -142,8 +143,7 @@ class TextureStage:
         material.set_resolution(resolutions)
         names = [n for n in ("albedo", "specular", "roughness")
                  if material.channels[n].kind == "colors" and n in material.trainable]
-        renderer = SceneRenderer(mesh, material.field, [v.camera for v in views], [v.lights for v in views],
-                                 lit_environment(self.capture, material), appearance.material_settings(self._base()))
+        renderer = self._renderer(mesh, material, appearance, views)
         images = [v.target for v in views]
         masks = [v.mask for v in views] if all(v.mask is not None for v in views) else None
         settings = appearance.driver.settings if appearance.driver is not None else FitSettings()
