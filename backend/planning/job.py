@@ -336,9 +336,8 @@ def _preset_event(args, emit, config, capture, folder):
     budget whatever the plan says, and the measurement would take its time from the fit for
     an estimate of the time left that changes no decision), announces it in a second
     ``preset`` event and returns the live estimate of the time left, caught up with the
-    events so far. The held-out PSNR is
-    predicted only with ``--track-accuracy`` (the probe decides nothing in the run: the Plan
-    button and ``--plan`` probe)."""
+    events so far. The held-out PSNR is predicted only with ``--track-accuracy`` (the probe
+    decides nothing in the run: the Plan button and ``--plan`` probe)."""
     preset = choose_preset(args)
     kind = lighting_kind(capture, config.lighting)
     entries = calibrated(kind=kind)
