@@ -448,10 +448,10 @@ class CameraRefinement:
     def start(cls, capture, config, viewset) -> "CameraRefinement | Unrefined":
         """The refinement ``config.refine_cameras`` asks for on ``capture`` (``enabled``), else
         one that does nothing."""
-        if enabled(config.refine_cameras, capture, getattr(config, "max_size", None)):
+        max_size = getattr(config, "max_size", None)
+        if enabled(config.refine_cameras, capture, max_size):
             return cls(capture, config, viewset)
-        note = unmeasurable(capture, getattr(config, "max_size", None)) if config.refine_cameras == "auto" else None
-        return Unrefined(config, note)
+        return Unrefined(config, unmeasurable(capture, max_size) if config.refine_cameras == "auto" else None)
 
     # A refinement lowering the mean loss by less than this share leaves the cameras settled: the
     # later levels do not refine again (one at twice the size costs about four times as much).
